@@ -1,0 +1,256 @@
+"""`BavoEnv`: one BAVO-Bench task under one visibility condition, as a gymnasium Env.
+
+Control: absolute joint-position targets (21) at 25 Hz; each control step runs 20 physics steps
+of 2 ms with the actuator targets linearly interpolated from the previous target (FACTS.md).
+Observation (copies, never views into simulator memory):
+    agent_pos (21,) float32: left 6 joints + gripper, right 6 + gripper, camera arm 7 (rad; the
+        grippers as normalised opening in [0, 1], 1 = open);
+    pixels/active (H, W, 3) uint8: the active camera's RGB image;
+    point_cloud (N, 6) float32: xyz in the base frame (default) or the camera frame (OpenCV
+        convention: x right, y down, z forward), rgb in [0, 1];
+    point_pixels (N, 2) int32: the source pixel (u, v) of every point (-1 if the view is empty).
+Reward: task progress d / 5 (deepest milestone so far, monotone), so LeRobot's
+`avg_max_reward` is the Task Progress Score. `terminated` and `info["is_success"]` at M5.
+Privileged information (milestone flags, object poses, camera pose) only goes into `info`.
+Seeding: every random draw comes from `self.np_random`, seeded by `reset(seed=...)`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from lerobot_bavo.envs.pointcloud import (
+    DEFAULT_STRIDE,
+    build_point_cloud,
+    camera_pose_from_mujoco,
+    intrinsics_from_fovy,
+)
+from lerobot_bavo.envs.tasks import make_task
+from lerobot_bavo.sim import constants as C
+from lerobot_bavo.sim.kinematics import make_arm_kinematics
+from lerobot_bavo.sim.rendering import SceneRenderer
+from lerobot_bavo.sim.scene import build_base_spec
+
+CONDITIONS = ("clean", "stage", "random")
+POINT_FRAMES = ("base", "camera")
+# Point-cloud crop box in the base frame (metres): the table's extent, from just above the table
+# top (so the bare table surface is not sampled) to 0.6 m above it.
+WORKSPACE_LOW = np.array([-0.61, -0.37, 0.004])
+WORKSPACE_HIGH = np.array([0.61, 0.37, 0.6])
+
+
+@dataclass(frozen=True)
+class ObservationSettings:
+    """What the env observes. Defaults follow DESIGN.md (240x320, 256 base-frame points)."""
+
+    image_height: int = 240
+    image_width: int = 320
+    n_points: int = 256
+    point_frame: str = "base"
+    fovy: float = C.ACTIVE_CAMERA_FOVY  # degrees, vertical
+    point_stride: int = DEFAULT_STRIDE  # pixel subsampling before farthest-point sampling
+
+
+class BavoEnv(gym.Env):
+    """A BAVO-Bench task under a visibility condition.
+
+    Args:
+        task: one of `lerobot_bavo.envs.tasks.TASK_NAMES`.
+        condition: "clean", "stage" or "random".
+        image_height, image_width: active-camera image size in pixels.
+        n_points: points per cloud (farthest-point sampled).
+        point_frame: "base" (robot-base frame, default) or "camera" (ablation).
+        fovy: active camera vertical field of view, degrees.
+        max_episode_steps: control steps before truncation (default: the task's own limit).
+        render_mode: "rgb_array" (third-person view beside the active view) or None.
+        render_height: height of each of the two panels of `render()`.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": C.CONTROL_HZ}
+
+    def __init__(
+        self,
+        task: str = "cube_handoff",
+        condition: str = "clean",
+        image_height: int = 240,
+        image_width: int = 320,
+        n_points: int = 256,
+        point_frame: str = "base",
+        fovy: float = C.ACTIVE_CAMERA_FOVY,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = "rgb_array",
+        render_height: int = 240,
+    ):
+        if condition not in CONDITIONS:
+            raise ValueError(f"unknown condition {condition!r}; expected one of {CONDITIONS}")
+        if condition != "clean":
+            raise NotImplementedError(
+                f"condition {condition!r} (occlusion) is not implemented in this version; use 'clean'"
+            )
+        if point_frame not in POINT_FRAMES:
+            raise ValueError(f"unknown point_frame {point_frame!r}; expected one of {POINT_FRAMES}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"unsupported render_mode {render_mode!r}; use 'rgb_array' or None")
+        if image_height < 16 or image_width < 16 or n_points < 1:
+            raise ValueError("image size must be >= 16 pixels and n_points >= 1")
+
+        self.task = make_task(task)
+        self.condition = condition
+        self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)
+        self.render_mode = render_mode
+        self.render_height = render_height
+        self.max_episode_steps = max_episode_steps or self.task.max_episode_steps
+        self.task_description = self.task.description
+
+        spec = build_base_spec(fovy=fovy)
+        spec.visual.global_.offwidth = max(640, image_width, 4 * render_height // 3)
+        spec.visual.global_.offheight = max(480, image_height, render_height)
+        self.task.build(spec)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.task.bind(self.model)
+        self.kinematics = make_arm_kinematics(self.model)
+
+        # Actuator i drives the joint of action entry i (same 21-entry order).
+        self._act_qpos_adr = self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]
+        self._grip_adr = [self.model.jnt_qposadr[self.model.joint(f"{p}finger_a").id] for p in ("left_", "right_")]
+        self._camera_id = self.model.camera(C.ACTIVE_CAMERA).id
+        self._K = intrinsics_from_fovy(fovy, image_height, image_width)
+
+        lo, hi = C.action_bounds()
+        self.action_space = gym.spaces.Box(lo, hi, dtype=np.float32)
+        self.observation_space = gym.spaces.Dict({
+            "agent_pos": gym.spaces.Box(-np.inf, np.inf, (C.ACTION_DIM,), np.float32),
+            "pixels": gym.spaces.Dict({
+                "active": gym.spaces.Box(0, 255, (image_height, image_width, 3), np.uint8),
+            }),
+            "point_cloud": gym.spaces.Box(-np.inf, np.inf, (n_points, 6), np.float32),
+            "point_pixels": gym.spaces.Box(-1, max(image_height, image_width), (n_points, 2), np.int32),
+        })
+
+        self._renderer: SceneRenderer | None = None
+        self._video_renderer: SceneRenderer | None = None
+        self._ctrl = np.zeros(self.model.nu)
+        self._elapsed = 0
+        self._tracker = None
+        self._flags: dict[str, bool] = {}
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        from lerobot_bavo.envs.tasks.base import MilestoneTracker
+
+        mujoco.mj_resetData(self.model, self.data)
+        home = self.action_to_ctrl(C.HOME_ACTION)
+        self.data.qpos[self._act_qpos_adr] = home
+        for adr in self._grip_adr:  # finger_b follows finger_a through the equality
+            self.data.qpos[adr + 1] = self.data.qpos[adr]
+        self.data.ctrl[:] = home
+        self._ctrl = home.copy()
+        self.task.initialize_episode(self.model, self.data, self.np_random)
+        mujoco.mj_forward(self.model, self.data)
+        self._elapsed = 0
+        self._tracker = MilestoneTracker()
+        self._flags = self.task.evaluate(self.model, self.data)
+        self._tracker.update(self._flags, 0)
+        return self._observation(), self._info()
+
+    def step(self, action):
+        if self._tracker is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (C.ACTION_DIM,):
+            raise ValueError(f"action must have shape ({C.ACTION_DIM},), got {action.shape}")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action contains NaN or inf at indices {np.flatnonzero(~np.isfinite(action)).tolist()}")
+        target = self.action_to_ctrl(np.clip(action, self.action_space.low, self.action_space.high))
+        start = self._ctrl
+        for k in range(1, C.CONTROL_SUBSTEPS + 1):
+            self.data.ctrl[:] = start + (target - start) * (k / C.CONTROL_SUBSTEPS)
+            mujoco.mj_step(self.model, self.data)
+        self._ctrl = target
+        self._elapsed += 1
+
+        self._flags = self.task.evaluate(self.model, self.data)
+        depth = self._tracker.update(self._flags, self._elapsed)
+        terminated = self._tracker.success
+        truncated = self._elapsed >= self.max_episode_steps and not terminated
+        return self._observation(), depth / 5.0, terminated, truncated, self._info()
+
+    def render(self):
+        """Third-person view (left) beside the active-camera view (right), HWC uint8."""
+        h = self.render_height
+        w = 4 * h // 3
+        if self._video_renderer is None:
+            self._video_renderer = SceneRenderer(self.model, h, w)
+        third = self._video_renderer.render_rgb(self.data, C.THIRD_PERSON_CAMERA)
+        active = self._video_renderer.render_rgb(self.data, self._camera_id)
+        return np.concatenate([third, active], axis=1)
+
+    def close(self):
+        for r in (self._renderer, self._video_renderer):
+            if r is not None:
+                r.close()
+        self._renderer = self._video_renderer = None
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def action_to_ctrl(action: np.ndarray) -> np.ndarray:
+        """21-dim action (grippers normalised) -> actuator targets (grippers in metres)."""
+        ctrl = np.array(action, dtype=np.float64)
+        for i in C.GRIPPER_INDICES:
+            ctrl[i] = C.gripper_to_finger(ctrl[i])
+        return ctrl
+
+    def joint_state(self) -> np.ndarray:
+        """Current 21-dim joint state (grippers normalised), float64 copy."""
+        q = self.data.qpos[self._act_qpos_adr].copy()
+        for i in C.GRIPPER_INDICES:
+            q[i] = C.finger_to_gripper(q[i])
+        return q
+
+    def camera_pose(self) -> np.ndarray:
+        """T_B<-C (4x4) of the active camera, OpenCV camera convention, from forward kinematics."""
+        return camera_pose_from_mujoco(self.data.cam_xpos[self._camera_id], self.data.cam_xmat[self._camera_id])
+
+    @property
+    def progress(self) -> int:
+        return self._tracker.depth if self._tracker is not None else 0
+
+    @property
+    def elapsed_steps(self) -> int:
+        return self._elapsed
+
+    def _render_active(self) -> tuple[np.ndarray, np.ndarray]:
+        s = self.obs_settings
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.model, s.image_height, s.image_width)
+        return self._renderer.render_rgbd(self.data, self._camera_id)
+
+    def _observation(self) -> dict:
+        s = self.obs_settings
+        rgb, depth = self._render_active()
+        cloud, pixels = build_point_cloud(
+            rgb, depth, self._K, self.camera_pose(), s.n_points, frame=s.point_frame,
+            workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH, stride=s.point_stride,
+        )
+        return {
+            "agent_pos": self.joint_state().astype(np.float32),
+            "pixels": {"active": rgb},
+            "point_cloud": cloud,
+            "point_pixels": pixels,
+        }
+
+    def _info(self) -> dict:
+        return {
+            "progress": self._tracker.depth,
+            "is_success": bool(self._tracker.success),
+            "milestones": dict(self._flags),
+            "camera_pose": self.camera_pose(),
+            "elapsed_steps": self._elapsed,
+            "object_poses": self.task.object_poses(self.model, self.data),
+        }

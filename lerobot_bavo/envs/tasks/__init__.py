@@ -1,0 +1,36 @@
+"""Task registry: one module per task, looked up by its benchmark name."""
+
+from __future__ import annotations
+
+from lerobot_bavo.envs.tasks.base import Task
+from lerobot_bavo.envs.tasks.cube_handoff import CubeHandoff
+
+# The five BAVO-Bench tasks in the paper's order; gym ids are `lerobot_bavo/<GymName>-v0`.
+TASK_NAMES = ("cube_handoff", "block_stacking", "drawer_stowing", "slide_retrieval", "dustpan_sweeping")
+GYM_NAMES = {
+    "cube_handoff": "CubeHandoff",
+    "block_stacking": "BlockStacking",
+    "drawer_stowing": "DrawerStowing",
+    "slide_retrieval": "SlideRetrieval",
+    "dustpan_sweeping": "DustpanSweeping",
+}
+
+# Tasks implemented so far (the remaining ones are tracked in the issue tracker).
+TASKS: dict[str, type[Task]] = {
+    CubeHandoff.name: CubeHandoff,
+}
+
+
+def make_task(name: str) -> Task:
+    """Instantiate a task by benchmark name, with a clear error for unknown or missing tasks."""
+    if name not in TASK_NAMES:
+        raise ValueError(f"unknown task {name!r}; BAVO-Bench tasks are {', '.join(TASK_NAMES)}")
+    if name not in TASKS:
+        raise NotImplementedError(
+            f"task {name!r} is part of BAVO-Bench but not implemented in this version; "
+            f"available: {', '.join(TASKS)}"
+        )
+    return TASKS[name]()
+
+
+__all__ = ["GYM_NAMES", "TASKS", "TASK_NAMES", "Task", "make_task"]

@@ -1,0 +1,116 @@
+"""Shared task machinery: the task interface, contact queries by bound geom id, milestones.
+
+A task is one class (ManiSkill / dm_control style) with fixed hooks:
+- `build(spec)`: add its objects to the MjSpec (once per env).
+- `bind(model)`: look up and cache the ids it needs (once per compiled model).
+- `initialize_episode(model, data, rng)`: sample the episode's object poses from `rng` only.
+- `evaluate(model, data) -> dict`: instantaneous milestone flags `m1`..`m5` (privileged state).
+Milestone depth is tracked monotonically and in order by `MilestoneTracker`.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+N_MILESTONES = 5
+
+
+class GripperGeoms:
+    """Bound geom ids of one manipulator's fingers (pads and stems)."""
+
+    def __init__(self, model: mujoco.MjModel, prefix: str):
+        self.pad_a = model.geom(f"{prefix}finger_a_pad").id
+        self.pad_b = model.geom(f"{prefix}finger_b_pad").id
+        stems = [model.geom(f"{prefix}finger_{s}_stem").id for s in "ab"]
+        self.all = frozenset([self.pad_a, self.pad_b, *stems])
+
+
+def contact_pairs(data: mujoco.MjData) -> set[tuple[int, int]]:
+    """All current contact geom pairs, each stored in both orders."""
+    n = data.ncon
+    if n == 0:
+        return set()
+    g1 = data.contact.geom1[:n]
+    g2 = data.contact.geom2[:n]
+    return set(zip(g1.tolist(), g2.tolist())) | set(zip(g2.tolist(), g1.tolist()))
+
+
+def touching(pairs: set[tuple[int, int]], geoms_a, geoms_b) -> bool:
+    return any((a, b) in pairs for a in geoms_a for b in geoms_b)
+
+
+def holds(pairs: set[tuple[int, int]], gripper: GripperGeoms, object_geoms) -> bool:
+    """A grasp: both finger pads touch the object."""
+    return touching(pairs, (gripper.pad_a,), object_geoms) and touching(pairs, (gripper.pad_b,), object_geoms)
+
+
+@dataclass
+class MilestoneTracker:
+    """Deepest milestone reached so far, in order (M_k counts only after M_{k-1}).
+
+    Once reached a milestone is never lost (paper, App. A "Task progress"); several may be
+    reached in one step if their predicates hold together.
+    """
+
+    depth: int = 0
+    reached_at: list[int] = field(default_factory=list)  # control step at which each was reached
+
+    def update(self, flags: dict[str, bool], step: int) -> int:
+        while self.depth < N_MILESTONES and flags[f"m{self.depth + 1}"]:
+            self.depth += 1
+            self.reached_at.append(step)
+        return self.depth
+
+    @property
+    def success(self) -> bool:
+        return self.depth == N_MILESTONES
+
+
+def body_pose(data: mujoco.MjData, body_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """Position (3,) and rotation matrix (3, 3) of a body in the base frame (copies)."""
+    return data.xpos[body_id].copy(), data.xmat[body_id].reshape(3, 3).copy()
+
+
+def set_free_body_pose(model: mujoco.MjModel, data: mujoco.MjData, joint_id: int, pos, yaw: float) -> None:
+    """Place a free-joint body at `pos` (m) with heading `yaw` (rad about +z), at rest."""
+    adr = model.jnt_qposadr[joint_id]
+    dof = model.jnt_dofadr[joint_id]
+    data.qpos[adr:adr + 3] = pos
+    data.qpos[adr + 3:adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+    data.qvel[dof:dof + 6] = 0.0
+
+
+class Task(abc.ABC):
+    """Base class of a BAVO-Bench task. Subclasses set the class attributes below."""
+
+    name: str = ""
+    description: str = ""  # the language instruction (LeRobot's `task`)
+    max_episode_steps: int = 600  # control steps at 25 Hz
+    # Stage Occlusion targets (paper, App. A Stage table): initial, after 1st and 2nd transition.
+    stage_targets: tuple[str, str, str] = ("", "", "")
+    # Milestones at which the Stage target switches (e.g. (2, 4) = after M2 and after M4).
+    stage_transitions: tuple[int, int] = (0, 0)
+
+    @abc.abstractmethod
+    def build(self, spec: mujoco.MjSpec) -> None: ...
+
+    @abc.abstractmethod
+    def bind(self, model: mujoco.MjModel) -> None: ...
+
+    @abc.abstractmethod
+    def initialize_episode(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None: ...
+
+    @abc.abstractmethod
+    def evaluate(self, model: mujoco.MjModel, data: mujoco.MjData) -> dict[str, bool]: ...
+
+    def object_poses(self, model: mujoco.MjModel, data: mujoco.MjData) -> dict[str, np.ndarray]:
+        """Privileged 7-d poses (xyz, wxyz quaternion) of the task's objects, for `info`."""
+        return {}
+
+    def view_points(self, model: mujoco.MjModel, data: mujoco.MjData, depth: int) -> np.ndarray:
+        """Points (K, 3) the camera should keep in view at milestone depth `depth`."""
+        return np.zeros((1, 3))

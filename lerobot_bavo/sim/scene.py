@@ -1,0 +1,62 @@
+"""The BAVO world: table, lights, third-person camera and the three arms, built with MjSpec.
+
+Task objects are added by each task's `build(spec)`; the benchmark occluder (issue 4) is added
+only for conditions that use it, so a Clean model contains no occluder at all.
+"""
+
+from __future__ import annotations
+
+import mujoco
+
+from lerobot_bavo.sim import constants as C
+from lerobot_bavo.sim.robot import add_camera_arm, add_manipulator, look_at_quat
+
+THIRD_PERSON_POS = (0.0, 1.15, 0.95)
+THIRD_PERSON_TARGET = (0.0, -0.05, 0.05)
+
+
+def build_base_spec(fovy: float = C.ACTIVE_CAMERA_FOVY) -> mujoco.MjSpec:
+    """A fresh spec with physics options, the table, lights, cameras and all three arms."""
+    spec = mujoco.MjSpec()
+    spec.modelname = "bavo"
+    spec.compiler.degree = False  # all angles in this package are radians
+    opt = spec.option
+    opt.timestep = C.PHYSICS_DT
+    opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    opt.impratio = 100.0
+    opt.noslip_iterations = 3
+    spec.visual.global_.offwidth = 640
+    spec.visual.global_.offheight = 480
+    spec.visual.quality.shadowsize = 0  # shadows off: the shadow pass dominates CPU rendering
+    spec.visual.map.znear = 0.01
+    spec.visual.map.zfar = 20.0
+    spec.stat.extent = 1.0
+    spec.stat.center = [0, 0, 0.2]
+
+    world = spec.worldbody
+    world.add_light(name="key", pos=[0, -0.3, 2.5], dir=[0, 0.1, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+                    castshadow=False, diffuse=[0.7, 0.7, 0.7], specular=[0.1, 0.1, 0.1])
+    world.add_light(name="fill", pos=[0.8, 1.2, 1.5], dir=[-0.4, -0.6, -0.7], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+                    castshadow=False, diffuse=[0.35, 0.35, 0.35], specular=[0, 0, 0])
+    spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
+    spec.visual.headlight.diffuse = [0.2, 0.2, 0.2]
+
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[3, 3, 0.1], pos=[0, 0, -0.75],
+                   rgba=[0.55, 0.55, 0.5, 1], group=C.GROUP_WORLD)
+    world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(C.TABLE_HALF_SIZE),
+                   pos=[0, 0, C.TABLE_CENTER_Z], rgba=[0.72, 0.62, 0.5, 1], group=C.GROUP_WORLD,
+                   friction=[1.0, 0.01, 0.001])
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            world.add_geom(name=f"table_leg_{sx:+d}{sy:+d}", type=mujoco.mjtGeom.mjGEOM_BOX,
+                           size=[0.03, 0.03, 0.325], pos=[sx * 0.55, sy * 0.31, -0.525],
+                           rgba=[0.4, 0.35, 0.3, 1], group=C.GROUP_WORLD, contype=0, conaffinity=0)
+
+    world.add_camera(name=C.THIRD_PERSON_CAMERA, pos=list(THIRD_PERSON_POS),
+                     quat=list(look_at_quat(THIRD_PERSON_POS, THIRD_PERSON_TARGET)), fovy=55)
+
+    add_manipulator(spec, C.LEFT_MOUNT)
+    add_manipulator(spec, C.RIGHT_MOUNT)
+    add_camera_arm(spec, fovy=fovy)
+    return spec
