@@ -1,0 +1,242 @@
+"""Relational distillation math for A-FAR (paper Sec. 4.2, Sec. 4.4 and Appendix B).
+
+Pure torch functions shared by the teacher cache writer and the A-FAR loss. Every function takes
+point-aligned token sets with an optional leading batch dimension: ``(N, D)`` or ``(B, N, D)``
+(relation matrices are then ``(N, N)`` or ``(B, N, N)``).
+
+- ``relation_matrix``   paper Eq. 4: R(Y|X)_ij = ||y_i - y_j||_2 / (mean_{p<q} ||x_p - x_q||_2 + eps)
+- ``teacher_relations`` paper Eq. 4: R^T = R(Z^0|Z^0), dR^T = R(Z^F|Z^0) - R^T
+- ``dynamics_weights``  Appendix B, Eq. afar_dynamic_weight: a_i, q_i, b_i, w_ij = sqrt(b_i b_j)
+- ``weighted_l1``       Appendix B: ||A||_{1,w} = sum_{i<j} w_ij |A_ij| / sum_{i<j} w_ij
+- ``relational_losses`` paper Eq. 6: L_cur (uniform) and L_evo (dynamics-weighted)
+
+Only the strict upper triangle (i < j) enters the losses: relation matrices are symmetric with a
+zero diagonal, so it carries all the information.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+
+__all__ = [
+    "pairwise_distances",
+    "relation_matrix",
+    "teacher_relations",
+    "dynamics_weights",
+    "weighted_l1",
+    "student_relations",
+    "relational_losses",
+]
+
+
+def _check_points(X: torch.Tensor, name: str) -> None:
+    if X.ndim not in (2, 3):
+        raise ValueError(f"{name} must be (N, D) or (B, N, D), got shape {tuple(X.shape)}")
+    if X.shape[-2] < 2:
+        raise ValueError(f"{name} needs at least 2 points to form a pair, got N={X.shape[-2]}")
+
+
+def _check_square(A: torch.Tensor, name: str) -> None:
+    if A.ndim not in (2, 3) or A.shape[-1] != A.shape[-2]:
+        raise ValueError(f"{name} must be (N, N) or (B, N, N), got shape {tuple(A.shape)}")
+    if A.shape[-1] < 2:
+        raise ValueError(f"{name} needs N >= 2, got N={A.shape[-1]}")
+
+
+def _upper_pairs(A: torch.Tensor) -> torch.Tensor:
+    """Strict upper triangle (i < j) of (..., N, N) as (..., N(N-1)/2), row-major order."""
+    n = A.shape[-1]
+    iu, ju = torch.triu_indices(n, n, offset=1, device=A.device)
+    return A[..., iu, ju]
+
+
+def pairwise_distances(X: torch.Tensor) -> torch.Tensor:
+    """Euclidean distances ||x_i - x_j||_2 among the rows of X, with gradients safe at zero.
+
+    Args:
+        X: (N, D) or (B, N, D).
+
+    Returns:
+        (N, N) or (B, N, N); exactly zero on the diagonal and for pairs whose squared distance
+        is at or below the floor ``eps(dtype)**2``.
+
+    Memory is O(B N^2): squared distances come from the Gram matrix of the centred points (pairwise
+    distances are translation invariant; centring shrinks the norms and so the cancellation error of
+    |x_i|^2 + |x_j|^2 - 2 x_i.x_j). Where the squared distance is at or below the floor the distance
+    is set to exactly 0 and its gradient to 0, so identical points never produce inf/NaN gradients
+    (the gradient of sqrt is infinite at 0). Half-precision inputs are computed in float32 with
+    autocast disabled, and the result is float32.
+    """
+    _check_points(X, "X")
+    if X.dtype in (torch.float16, torch.bfloat16):
+        X = X.float()
+    with torch.autocast(device_type=X.device.type, enabled=False):
+        Xc = X - X.mean(dim=-2, keepdim=True)  # (..., N, D)
+        sq = (Xc * Xc).sum(dim=-1)  # (..., N)
+        sqdist = sq.unsqueeze(-1) + sq.unsqueeze(-2) - 2.0 * (Xc @ Xc.transpose(-1, -2))  # (..., N, N)
+        floor = torch.finfo(sqdist.dtype).eps ** 2
+        positive = sqdist > floor
+        n = X.shape[-2]
+        positive = positive & ~torch.eye(n, dtype=torch.bool, device=X.device)
+        dist = torch.sqrt(sqdist.clamp_min(floor))
+        return torch.where(positive, dist, torch.zeros_like(dist))
+
+
+def _mean_pair_distance(D: torch.Tensor) -> torch.Tensor:
+    """mean_{p<q} D_pq of a (..., N, N) distance matrix, shape (..., 1, 1) for broadcasting."""
+    return _upper_pairs(D).mean(dim=-1)[..., None, None]
+
+
+def _relation_from_distances(D_Y: torch.Tensor, D_X: torch.Tensor, eps: float) -> torch.Tensor:
+    return D_Y / (_mean_pair_distance(D_X) + eps)
+
+
+def relation_matrix(Y: torch.Tensor, X: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    """Paper Eq. 4: R(Y|X)_ij = ||y_i - y_j||_2 / (mean_{p<q} ||x_p - x_q||_2 + eps).
+
+    Args:
+        Y: (N, D) or (B, N, D), the points whose pairwise distances are measured.
+        X: same leading shape as Y (feature width may differ), the points giving the scale.
+        eps: added to the mean pairwise distance of X.
+
+    Returns:
+        (N, N) or (B, N, N).
+    """
+    _check_points(Y, "Y")
+    _check_points(X, "X")
+    if Y.shape[:-1] != X.shape[:-1]:
+        raise ValueError(f"Y and X must share (B,) N; got Y {tuple(Y.shape)} and X {tuple(X.shape)}")
+    return _relation_from_distances(pairwise_distances(Y), pairwise_distances(X), eps)
+
+
+def teacher_relations(
+    Z0: torch.Tensor, ZF: torch.Tensor, eps: float = 1e-6
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Paper Eq. 4: R^T = R(Z^0|Z^0) and dR^T = R(Z^F|Z^0) - R^T.
+
+    Args:
+        Z0: (N, d_T) or (B, N, d_T) teacher features of the current queries q^0.
+        ZF: same shape, teacher features of the future queries q^F (point-aligned with Z0).
+
+    Returns:
+        (R, dR), each (N, N) or (B, N, N). Both are normalised by the *current* mean distance.
+    """
+    _check_points(Z0, "Z0")
+    _check_points(ZF, "ZF")
+    if Z0.shape[:-1] != ZF.shape[:-1]:
+        raise ValueError(f"Z0 and ZF must be point-aligned; got {tuple(Z0.shape)} and {tuple(ZF.shape)}")
+    D0 = pairwise_distances(Z0)
+    R = _relation_from_distances(D0, D0, eps)
+    R_future = _relation_from_distances(pairwise_distances(ZF), D0, eps)
+    return R, R_future - R
+
+
+def dynamics_weights(dR: torch.Tensor) -> torch.Tensor:
+    """Appendix B dynamics-aware pair weights from the teacher relation change dR.
+
+        a_i  = 1/(N-1) sum_{j != i} |dR_ij|
+        q_i  = N a_i / sum_k a_k          (unit mean over the N points)
+        b_i  = 0.5 + 0.5 q_i
+        w_ij = sqrt(b_i b_j)
+
+    Convention for a static sample (sum_k a_k == 0, i.e. dR == 0): the paper's q is 0/0 there; we
+    set q_i = 1 for every point, the unit-mean uniform weighting, so w_ij = 1. This is decided per
+    sample in a batch.
+
+    Args:
+        dR: (N, N) or (B, N, N).
+
+    Returns:
+        w: (N, N) or (B, N, N), symmetric, every entry >= 0.5.
+    """
+    _check_square(dR, "dR")
+    n = dR.shape[-1]
+    off_diag = ~torch.eye(n, dtype=torch.bool, device=dR.device)
+    a = (dR.abs() * off_diag).sum(dim=-1) / (n - 1)  # (..., N)
+    total = a.sum(dim=-1, keepdim=True)  # (..., 1)
+    moving = total > 0
+    q = torch.where(moving, n * a / torch.where(moving, total, torch.ones_like(total)), torch.ones_like(a))
+    b = 0.5 + 0.5 * q  # (..., N)
+    return torch.sqrt(b.unsqueeze(-1) * b.unsqueeze(-2))
+
+
+def weighted_l1(A: torch.Tensor, w: torch.Tensor | None = None) -> torch.Tensor:
+    """Appendix B weighted norm: ||A||_{1,w} = sum_{i<j} w_ij |A_ij| / sum_{i<j} w_ij.
+
+    Only the strict upper triangle of A and w is read. With ``w=None`` the weights are uniform, so
+    the value is the plain mean of |A_ij| over i < j (the paper's L_cur). With a batch dimension the
+    per-sample norms are averaged over the batch (each sample counts equally).
+
+    Args:
+        A: (N, N) or (B, N, N).
+        w: None, or non-negative weights of A's shape (or (N, N), broadcast over the batch).
+
+    Returns:
+        Scalar tensor.
+    """
+    _check_square(A, "A")
+    a = _upper_pairs(A).abs()  # (..., P)
+    if w is None:
+        per_sample = a.mean(dim=-1)
+    else:
+        _check_square(w, "w")
+        if w.shape[-1] != A.shape[-1] or (w.ndim == 3 and w.shape != A.shape):
+            raise ValueError(f"w must be (N, N) or match A {tuple(A.shape)}, got {tuple(w.shape)}")
+        wp = _upper_pairs(w)
+        per_sample = (wp * a).sum(dim=-1) / wp.sum(dim=-1)
+    return per_sample.mean()
+
+
+def student_relations(
+    H_cur: torch.Tensor, H_fut: torch.Tensor, eps: float = 1e-6
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sec. 4.4: the teacher's operator applied to the normalised student tokens.
+
+    "Normalised" is read as per-token L2 normalisation along the feature dimension
+    (``F.normalize(H, dim=-1)``): it puts the student's tokens on the unit sphere so the relation
+    scale does not depend on the token norm. Then R^S = R(H^|H^) and dR^S = R(H^_F|H^) - R^S.
+
+    Args:
+        H_cur: (N, d) or (B, N, d) current point tokens H_t.
+        H_fut: same shape, predicted future point tokens from the WorldQueryFormer.
+
+    Returns:
+        (R_S, dR_S), each (N, N) or (B, N, N).
+    """
+    return teacher_relations(F.normalize(H_cur, dim=-1), F.normalize(H_fut, dim=-1), eps=eps)
+
+
+def relational_losses(
+    H_cur: torch.Tensor,
+    H_fut: torch.Tensor,
+    R_T: torch.Tensor,
+    dR_T: torch.Tensor,
+    eps: float = 1e-6,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Paper Eq. 6: L_cur = ||R^S - R^T||_1 (uniform) and L_evo = ||dR^S - dR^T||_{1,w}.
+
+    The weights w = dynamics_weights(dR^T) come from the teacher only and are computed on a
+    detached copy (they are part of the target). The caller combines the terms as
+    ``lambda_rel / 2 * (L_cur + L_evo)``.
+
+    Args:
+        H_cur: (N, d) or (B, N, d) current student tokens.
+        H_fut: same shape, predicted future student tokens.
+        R_T:  (N, N) or (B, N, N) teacher current relations.
+        dR_T: same shape, teacher relation evolution.
+
+    Returns:
+        (L_cur, L_evo), scalar tensors.
+    """
+    R_S, dR_S = student_relations(H_cur, H_fut, eps=eps)
+    if R_T.shape != R_S.shape or dR_T.shape != R_S.shape:
+        raise ValueError(
+            f"teacher targets must match the student relations {tuple(R_S.shape)}; "
+            f"got R_T {tuple(R_T.shape)} and dR_T {tuple(dR_T.shape)}"
+        )
+    R_T = R_T.to(R_S.dtype)
+    dR_T = dR_T.to(R_S.dtype)
+    L_cur = weighted_l1(R_S - R_T)
+    L_evo = weighted_l1(dR_S - dR_T, dynamics_weights(dR_T.detach()))
+    return L_cur, L_evo

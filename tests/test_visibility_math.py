@@ -1,0 +1,175 @@
+"""Visibility ratio, CVG accounting and the task metrics (paper Sec. 3, Appendix A)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lerobot_bavo.envs.visibility import (
+    CVG_HORIZON,
+    CVGAccumulator,
+    CVGEventRecord,
+    aggregate_cvg,
+    episode_cvg,
+    event_cvg,
+    joint_score,
+    normalized_visibility,
+    success_rate,
+    task_progress_score,
+)
+
+
+def test_normalized_visibility():
+    assert normalized_visibility(30, 120) == 0.25
+    assert normalized_visibility(0, 50) == 0.0
+    assert normalized_visibility(50, 50) == 1.0
+    assert normalized_visibility(0, 0) == 0.0  # N_noOcc = 0 -> 0
+    assert normalized_visibility(np.int64(3), np.int64(4)) == 0.75
+    with pytest.raises(ValueError):
+        normalized_visibility(-1, 10)
+    with pytest.raises(ValueError):
+        normalized_visibility(0, -1)
+    with pytest.raises(ValueError):
+        normalized_visibility(11, 10)
+    with pytest.raises(ValueError):
+        normalized_visibility(1, 0)
+    with pytest.raises(TypeError):
+        normalized_visibility(1.5, 10)
+
+
+def test_event_cvg_frozen_camera_is_exactly_zero():
+    rng = np.random.default_rng(0)
+    v = rng.random(CVG_HORIZON).tolist()
+    assert event_cvg(v, v) == 0.0
+    assert event_cvg(v, list(v), horizon=CVG_HORIZON) == 0.0
+
+
+def test_event_cvg_hand_computed():
+    realized = [0.1, 0.5, 0.9, 1.0]
+    frozen = [0.1, 0.1, 0.2, 0.2]
+    assert event_cvg(realized, frozen, horizon=4) == pytest.approx((0 + 0.4 + 0.7 + 0.8) / 4)
+    assert event_cvg(realized, frozen, horizon=4) == pytest.approx(0.475)
+    # Samples beyond H do not count.
+    assert event_cvg([*realized, 0.0], [*frozen, 1.0], horizon=4) == pytest.approx(0.475)
+    # Negative when the camera moves to a worse view.
+    assert event_cvg(frozen, realized, horizon=4) == pytest.approx(-0.475)
+
+
+def test_event_cvg_truncated_window_is_none():
+    assert event_cvg([0.5, 0.6, 0.7], [0.1, 0.1, 0.1], horizon=4) is None
+    assert event_cvg([], [], horizon=4) is None
+    assert event_cvg([0.5] * 59, [0.0] * 59) is None  # default H = 60
+    assert event_cvg([0.5] * 60, [0.0] * 60) == pytest.approx(0.5)
+    with pytest.raises(ValueError):
+        event_cvg([0.1, 0.2], [0.1], horizon=2)
+    with pytest.raises(ValueError):
+        event_cvg([0.1], [0.1], horizon=0)
+
+
+def test_truncated_events_excluded_from_episode_mean():
+    assert episode_cvg([0.2, None, 0.4]) == pytest.approx(0.3)  # not (0.2 + 0 + 0.4) / 3
+    assert episode_cvg([None, None]) is None
+    assert episode_cvg([]) is None
+
+
+def test_episodes_weigh_equally():
+    # Episode A: three events, episode B: one event, episode C: none retained.
+    ep_a = episode_cvg([0.1, 0.1, 0.1])
+    ep_b = episode_cvg([0.5])
+    ep_c = episode_cvg([None])
+    dataset = aggregate_cvg([ep_a, ep_b, ep_c])
+    assert dataset == pytest.approx((0.1 + 0.5) / 2)  # 0.3
+    event_weighted = (0.1 + 0.1 + 0.1 + 0.5) / 4  # 0.2: what pooling events would give
+    assert dataset != pytest.approx(event_weighted)
+    assert aggregate_cvg([None, None]) is None
+
+
+def test_success_rate_and_tps():
+    assert success_rate([True, False, True, True]) == 75.0
+    assert success_rate(np.array([1, 0])) == 50.0
+    with pytest.raises(ValueError):
+        success_rate([])
+    assert task_progress_score([5, 0, 3]) == pytest.approx(53.333333, abs=1e-4)
+    assert task_progress_score([5, 5]) == 100.0
+    assert task_progress_score([np.int64(2)]) == pytest.approx(40.0)
+    for bad in ([6], [-1]):
+        with pytest.raises(ValueError):
+            task_progress_score(bad)
+    for bad in ([2.5], [True]):
+        with pytest.raises(TypeError):
+            task_progress_score(bad)
+    with pytest.raises(ValueError):
+        task_progress_score([])
+
+
+def test_joint_score():
+    # Table 4 convention: SR in percent, CVG in pp.
+    assert joint_score(50.0, 20.0) == pytest.approx(10.0)
+    assert joint_score(0.0, 32.81) == 0.0
+    assert joint_score(80.0, None) is None
+
+
+def test_event_record_cvg():
+    rec = CVGEventRecord(index=0, start_step=10, target_name="cube", v_realized=[0.1, 0.5, 0.9, 1.0],
+                         v_frozen=[0.1, 0.1, 0.2, 0.2])
+    assert rec.cvg(4) == pytest.approx(0.475)
+    assert rec.cvg(5) is None
+    assert rec.covers(10, 4) and rec.covers(13, 4) and not rec.covers(14, 4) and not rec.covers(9, 4)
+
+
+def test_accumulator_two_events_episode_ends_mid_window():
+    H = 4
+    acc = CVGAccumulator(horizon=H)
+    # Event 0 at step 0, event 1 at step 6; the episode ends after step 7 (inside event 1's window).
+    realized = {0: 0.1, 1: 0.5, 2: 0.9, 3: 1.0, 4: 0.3, 5: 0.3, 6: 0.0, 7: 0.6}
+    frozen = {0: 0.1, 1: 0.1, 2: 0.2, 3: 0.2, 4: 0.9, 5: 0.9, 6: 0.0, 7: 0.1}
+    for step in range(8):
+        if step == 0:
+            assert acc.start_event(step, "cube") == 0
+        if step == 6:
+            assert acc.start_event(step, "bin") == 1
+        acc.record(step, realized[step], frozen[step])
+    out = acc.close_episode()
+    assert out["horizon"] == H
+    assert out["num_events"] == 2 and out["num_retained"] == 1
+    e0, e1 = out["events"]
+    assert (e0["index"], e0["start_step"], e0["target"], e0["num_samples"]) == (0, 0, "cube", 4)
+    assert e0["cvg"] == pytest.approx(0.475)  # steps 4, 5 fall outside its window
+    assert (e1["index"], e1["start_step"], e1["target"], e1["num_samples"]) == (1, 6, "bin", 2)
+    assert e1["cvg"] is None  # truncated: excluded, not padded
+    assert out["episode_cvg"] == pytest.approx(0.475)
+    # The accumulator is empty for the next episode.
+    assert acc.close_episode() == {"horizon": H, "events": [], "num_events": 0, "num_retained": 0,
+                                   "episode_cvg": None}
+
+
+def test_accumulator_overlapping_windows_keep_their_own_h_steps():
+    acc = CVGAccumulator(horizon=3)
+    acc.start_event(0, "a")
+    acc.record(0, 0.0, 0.0)
+    acc.start_event(1, "b")
+    assert acc.open_events(1) == [0, 1]
+    # Per-event values (each event has its own frozen pose/occluder/target).
+    acc.record(1, {0: 0.6, 1: 0.2}, {0: 0.0, 1: 0.2})
+    acc.record(2, {0: 0.9, 1: 0.5}, {0: 0.0, 1: 0.2})
+    assert acc.open_events(3) == [1]
+    acc.record(3, 0.8, 0.2)  # a float applies to every open event (only event 1 here)
+    out = acc.close_episode()
+    assert out["events"][0]["cvg"] == pytest.approx((0 + 0.6 + 0.9) / 3)
+    assert out["events"][1]["cvg"] == pytest.approx((0 + 0.3 + 0.6) / 3)
+    assert out["episode_cvg"] == pytest.approx((0.5 + 0.3) / 2)
+
+
+def test_accumulator_rejects_skipped_steps_and_missing_values():
+    acc = CVGAccumulator(horizon=4)
+    acc.start_event(5, "a")
+    acc.record(3, 0.0, 0.0)  # before the window: ignored
+    acc.record(5, 0.0, 0.0)
+    with pytest.raises(ValueError):
+        acc.record(7, 0.0, 0.0)  # step 6 was skipped
+    acc = CVGAccumulator(horizon=4)
+    acc.start_event(0, "a")
+    with pytest.raises(KeyError):
+        acc.record(0, {1: 0.0}, 0.0)
+    with pytest.raises(ValueError):
+        CVGAccumulator(horizon=0)
