@@ -160,21 +160,7 @@ class BavoEnv(gym.Env):
         return self._observation(), self._info()
 
     def step(self, action):
-        if self._tracker is None:
-            raise RuntimeError("call reset() before step()")
-        action = np.asarray(action, dtype=np.float64)
-        if action.shape != (C.ACTION_DIM,):
-            raise ValueError(f"action must have shape ({C.ACTION_DIM},), got {action.shape}")
-        if not np.all(np.isfinite(action)):
-            raise ValueError(f"action contains NaN or inf at indices {np.flatnonzero(~np.isfinite(action)).tolist()}")
-        target = self.action_to_ctrl(np.clip(action, self.action_space.low, self.action_space.high))
-        start = self._ctrl
-        for k in range(1, C.CONTROL_SUBSTEPS + 1):
-            self.data.ctrl[:] = start + (target - start) * (k / C.CONTROL_SUBSTEPS)
-            mujoco.mj_step(self.model, self.data)
-        self._ctrl = target
-        self._elapsed += 1
-
+        self.simulate(action)
         self._flags = self.task.evaluate(self.model, self.data)
         depth = self._tracker.update(self._flags, self._elapsed)
         terminated = self._tracker.success
@@ -198,6 +184,28 @@ class BavoEnv(gym.Env):
         self._renderer = self._video_renderer = None
 
     # ------------------------------------------------------------------ helpers
+    def simulate(self, action) -> None:
+        """Physics of one control step only (no milestones, no observation).
+
+        Validates the action, clips it to the joint limits and runs `CONTROL_SUBSTEPS` physics
+        steps with the actuator targets linearly interpolated from the previous target.
+        `step()` calls this; benchmarks use it to time physics alone.
+        """
+        if self._tracker is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (C.ACTION_DIM,):
+            raise ValueError(f"action must have shape ({C.ACTION_DIM},), got {action.shape}")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action contains NaN or inf at indices {np.flatnonzero(~np.isfinite(action)).tolist()}")
+        target = self.action_to_ctrl(np.clip(action, self.action_space.low, self.action_space.high))
+        start = self._ctrl
+        for k in range(1, C.CONTROL_SUBSTEPS + 1):
+            self.data.ctrl[:] = start + (target - start) * (k / C.CONTROL_SUBSTEPS)
+            mujoco.mj_step(self.model, self.data)
+        self._ctrl = target
+        self._elapsed += 1
+
     @staticmethod
     def action_to_ctrl(action: np.ndarray) -> np.ndarray:
         """21-dim action (grippers normalised) -> actuator targets (grippers in metres)."""
