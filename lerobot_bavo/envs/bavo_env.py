@@ -29,7 +29,7 @@ from lerobot_bavo.envs.pointcloud import (
     camera_pose_from_mujoco,
     intrinsics_from_fovy,
 )
-from lerobot_bavo.envs.tasks import make_task
+from lerobot_bavo.envs.tasks import Task, make_task
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.kinematics import make_arm_kinematics
 from lerobot_bavo.sim.rendering import SceneRenderer
@@ -59,7 +59,7 @@ class BavoEnv(gym.Env):
     """A BAVO-Bench task under a visibility condition.
 
     Args:
-        task: one of `lerobot_bavo.envs.tasks.TASK_NAMES`.
+        task: one of `lerobot_bavo.envs.tasks.TASK_NAMES`, or a `Task` instance (custom tasks).
         condition: "clean", "stage" or "random".
         image_height, image_width: active-camera image size in pixels.
         n_points: points per cloud (farthest-point sampled).
@@ -74,7 +74,7 @@ class BavoEnv(gym.Env):
 
     def __init__(
         self,
-        task: str = "cube_handoff",
+        task: str | Task = "cube_handoff",
         condition: str = "clean",
         image_height: int = 240,
         image_width: int = 320,
@@ -98,7 +98,7 @@ class BavoEnv(gym.Env):
         if image_height < 16 or image_width < 16 or n_points < 1:
             raise ValueError("image size must be >= 16 pixels and n_points >= 1")
 
-        self.task = make_task(task)
+        self.task = task if isinstance(task, Task) else make_task(task)
         self.condition = condition
         self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)
         self.render_mode = render_mode

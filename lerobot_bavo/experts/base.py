@@ -122,6 +122,7 @@ class ScriptedExpert(abc.ABC):
             the nominal timing.
     """
 
+    task_name: str = ""  # the benchmark task this expert solves
     speed_jitter = 0.15
 
     def __init__(self, env, seed: int | None = None):

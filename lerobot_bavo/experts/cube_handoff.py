@@ -36,6 +36,8 @@ def left_side_rot(pitch: float = LEFT_PITCH) -> np.ndarray:
 
 
 class CubeHandoffExpert(ScriptedExpert):
+    task_name = "cube_handoff"
+
     def script(self):
         cube = self.body_pos("cube")
         yaw = cube_face_yaw(self.body_rot("cube"))

@@ -11,8 +11,10 @@ import mujoco
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.robot import add_camera_arm, add_manipulator, look_at_quat
 
-THIRD_PERSON_POS = (0.0, 1.15, 0.95)
-THIRD_PERSON_TARGET = (0.0, -0.05, 0.05)
+# Third-person view from behind and above the operator side (the camera arm's side), so that
+# left/right in the video match left/right in the active view.
+THIRD_PERSON_POS = (0.32, -0.85, 0.8)
+THIRD_PERSON_TARGET = (0.0, 0.05, 0.0)
 
 
 def build_base_spec(fovy: float = C.ACTIVE_CAMERA_FOVY) -> mujoco.MjSpec:
@@ -40,6 +42,8 @@ def build_base_spec(fovy: float = C.ACTIVE_CAMERA_FOVY) -> mujoco.MjSpec:
     spec.stat.extent = 1.0
     spec.stat.center = [0, 0, 0.2]
 
+    spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+                     rgb1=[0.75, 0.8, 0.85], rgb2=[0.35, 0.4, 0.45], width=64, height=64)
     world = spec.worldbody
     world.add_light(name="key", pos=[0, -0.3, 2.5], dir=[0, 0.1, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
                     castshadow=False, diffuse=[0.7, 0.7, 0.7], specular=[0.1, 0.1, 0.1])
