@@ -13,7 +13,7 @@ from lerobot_bavo.sim.robot import add_camera_arm, add_manipulator, look_at_quat
 
 # Third-person view from behind and above the operator side (the camera arm's side), so that
 # left/right in the video match left/right in the active view.
-THIRD_PERSON_POS = (0.32, -0.85, 0.8)
+THIRD_PERSON_POS = (0.42, -0.95, 1.05)
 THIRD_PERSON_TARGET = (0.0, 0.05, 0.0)
 
 
