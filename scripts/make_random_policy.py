@@ -40,6 +40,10 @@ def small_policy_config(policy_type: str, device: str):
             dim_feedforward=512, n_encoder_layers=2, n_decoder_layers=1, use_vae=False,
         )
     if policy_type == "diffusion":
+        import importlib.util
+
+        if importlib.util.find_spec("diffusers") is None:
+            raise ImportError("--policy-type diffusion needs diffusers: pip install 'lerobot[diffusion]==0.6.1'")
         return make_policy_config(
             "diffusion", **common, horizon=16, n_action_steps=8, drop_n_last_frames=7,
             down_dims=(64, 128), diffusion_step_embed_dim=32, spatial_softmax_num_keypoints=16,
@@ -119,7 +123,8 @@ def make_random_policy(
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--output-dir", type=Path, required=True, help="where to write the checkpoint")
-    parser.add_argument("--policy-type", choices=POLICY_TYPES, default="act", help="built-in LeRobot policy")
+    parser.add_argument("--policy-type", choices=POLICY_TYPES, default="act",
+                        help="built-in LeRobot policy (diffusion needs the lerobot[diffusion] extra)")
     parser.add_argument("--task", default="cube_handoff", help="BAVO-Bench task the features come from")
     parser.add_argument("--image-height", type=int, default=240, help="must match --env.image_height")
     parser.add_argument("--image-width", type=int, default=320, help="must match --env.image_width")

@@ -65,7 +65,8 @@ class BavoEnv(gym.Env):
         n_points: points per cloud (farthest-point sampled).
         point_frame: "base" (robot-base frame, default) or "camera" (ablation).
         fovy: active camera vertical field of view, degrees.
-        max_episode_steps: control steps before truncation (default: the task's own limit).
+        episode_length: control steps before truncation (default: the task's own limit). Named
+            so because `gym.make` keeps a `max_episode_steps` keyword for its TimeLimit wrapper.
         render_mode: "rgb_array" (third-person view beside the active view) or None.
         render_height: height of each of the two panels of `render()`.
     """
@@ -81,7 +82,7 @@ class BavoEnv(gym.Env):
         n_points: int = 256,
         point_frame: str = "base",
         fovy: float = C.ACTIVE_CAMERA_FOVY,
-        max_episode_steps: int | None = None,
+        episode_length: int | None = None,
         render_mode: str | None = "rgb_array",
         render_height: int = 240,
     ):
@@ -103,7 +104,9 @@ class BavoEnv(gym.Env):
         self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)
         self.render_mode = render_mode
         self.render_height = render_height
-        self.max_episode_steps = max_episode_steps or self.task.max_episode_steps
+        if episode_length is not None and episode_length < 1:
+            raise ValueError(f"episode_length must be >= 1, got {episode_length}")
+        self.max_episode_steps = episode_length or self.task.max_episode_steps
         self.task_description = self.task.description
 
         spec = build_base_spec(fovy=fovy)

@@ -1,0 +1,147 @@
+"""LeRobot `EnvConfig` for BAVO-Bench, registered as env type "bavo".
+
+With the `lerobot_env_bavo` distribution installed, LeRobot's CLIs import this package on start-up, so
+
+    lerobot-eval --policy.path=<dir> --env.type=bavo --env.task=cube_handoff
+
+works with no extra flags. `gym_kwargs` is the only bridge to `gym.make` (see `lerobot_bavo.envs`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE, OBS_STR
+
+from lerobot_bavo.envs.bavo_env import CONDITIONS, POINT_FRAMES
+from lerobot_bavo.envs.tasks import TASK_NAMES, TASKS
+from lerobot_bavo.sim.constants import ACTION_DIM, CONTROL_HZ
+
+from . import GYM_NAMESPACE, gym_id
+
+# Raw env observation keys ("pixels/<cam>" is LeRobot's convention for nested camera dicts).
+ENV_STATE_KEY = "agent_pos"
+ENV_IMAGE_KEY = "pixels/active"
+ENV_POINT_CLOUD_KEY = "point_cloud"
+ENV_POINT_PIXELS_KEY = "point_pixels"
+
+# The policy-side (and dataset-side) names of the same features.
+OBS_IMAGE_ACTIVE = f"{OBS_IMAGES}.active"  # "observation.images.active"
+OBS_POINT_CLOUD = f"{OBS_STR}.point_cloud"  # "observation.point_cloud"
+OBS_POINT_PIXELS = f"{OBS_STR}.point_pixels"  # "observation.point_pixels"
+
+RENDER_MODES = ("rgb_array",)
+
+
+@EnvConfig.register_subclass("bavo")
+@dataclass
+class BavoEnvConfig(EnvConfig):
+    """One BAVO-Bench task under one visibility condition, for `lerobot-eval` / `lerobot-train`.
+
+    Args:
+        task: benchmark task name, one of `lerobot_bavo.envs.tasks.TASK_NAMES` ("cube_handoff",
+            "block_stacking", ...). The gym id is `lerobot_bavo/<GymName>-v0`, e.g.
+            `lerobot_bavo/CubeHandoff-v0`; only the tasks in `TASKS` are implemented so far.
+        condition: visibility condition, "clean" (no occluder), "stage" (occluder placed at
+            stage transitions) or "random" (random-time occlusion events).
+        fps: control rate in Hz; the simulator runs at 25 Hz, so this is informational (it sets the
+            fps of recorded datasets) and must be 25.
+        episode_length: control steps before truncation (`TimeLimit`, read by LeRobot's rollout as
+            `_max_episode_steps`); None = the task's own limit (`Task.max_episode_steps`).
+        image_height, image_width: active-camera image size in pixels (observation
+            `observation.images.active`, HWC uint8 in the env, CHW float in [0, 1] for policies).
+        n_points: points per point cloud (`observation.point_cloud`, (n_points, 6): xyz + rgb).
+        point_frame: frame of the point-cloud xyz, "base" (robot base / world, default) or
+            "camera" (active-camera frame, an ablation).
+        render_mode: mode of `env.render()`, used by `lerobot-eval` for its episode videos
+            ("rgb_array": third-person view beside the active view).
+        features: raw env feature specs (filled in `__post_init__`; visual shapes are HWC).
+        features_map: raw env key -> policy/dataset key, e.g. "agent_pos" -> "observation.state".
+    """
+
+    task: str = "cube_handoff"
+    condition: str = "clean"
+    fps: int = CONTROL_HZ
+    episode_length: int | None = None
+    image_height: int = 240
+    image_width: int = 320
+    n_points: int = 256
+    point_frame: str = "base"
+    render_mode: str = "rgb_array"
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+    )
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {
+            ACTION: ACTION,
+            ENV_STATE_KEY: OBS_STATE,
+            ENV_IMAGE_KEY: OBS_IMAGE_ACTIVE,
+            ENV_POINT_CLOUD_KEY: OBS_POINT_CLOUD,
+            ENV_POINT_PIXELS_KEY: OBS_POINT_PIXELS,
+        }
+    )
+
+    def __post_init__(self):
+        if self.task not in TASK_NAMES:
+            raise ValueError(f"unknown BAVO-Bench task {self.task!r}; expected one of {', '.join(TASK_NAMES)}")
+        if self.condition not in CONDITIONS:
+            raise ValueError(f"unknown condition {self.condition!r}; expected one of {', '.join(CONDITIONS)}")
+        if self.point_frame not in POINT_FRAMES:
+            raise ValueError(f"unknown point_frame {self.point_frame!r}; expected one of {', '.join(POINT_FRAMES)}")
+        if self.render_mode not in RENDER_MODES:
+            raise ValueError(f"unsupported render_mode {self.render_mode!r}; expected one of {RENDER_MODES}")
+        if self.fps != CONTROL_HZ:
+            raise ValueError(f"fps={self.fps} but BAVO-Bench is controlled at {CONTROL_HZ} Hz")
+        if self.image_height < 16 or self.image_width < 16:
+            raise ValueError(f"image size must be >= 16 pixels, got {self.image_height}x{self.image_width}")
+        if self.n_points < 1:
+            raise ValueError(f"n_points must be >= 1, got {self.n_points}")
+        if self.episode_length is not None:
+            if self.episode_length < 1:
+                raise ValueError(f"episode_length must be >= 1 or None, got {self.episode_length}")
+
+        self.features[ENV_STATE_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(ACTION_DIM,))
+        self.features[ENV_IMAGE_KEY] = PolicyFeature(
+            type=FeatureType.VISUAL, shape=(self.image_height, self.image_width, 3)
+        )
+        # Non-image `observation.*` features are typed STATE, as LeRobot's dataset_to_policy_features
+        # does for our datasets; policies that cannot use them (ACT, Diffusion) ignore them.
+        self.features[ENV_POINT_CLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 6))
+        self.features[ENV_POINT_PIXELS_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 2))
+
+    @property
+    def package_name(self) -> str:
+        """Imported by `create_envs` if the gym id is not registered yet."""
+        return GYM_NAMESPACE
+
+    @property
+    def gym_id(self) -> str:
+        return gym_id(self.task)
+
+    @property
+    def gym_kwargs(self) -> dict:
+        """Keyword arguments of `gym.make(self.gym_id, ...)`. `max_episode_steps` is consumed by
+        gym.make for its TimeLimit wrapper (None keeps the registered task limit); the same limit
+        goes to `BavoEnv` as `episode_length`, so both truncate at the same step."""
+        return {
+            "condition": self.condition,
+            "image_height": self.image_height,
+            "image_width": self.image_width,
+            "n_points": self.n_points,
+            "point_frame": self.point_frame,
+            "render_mode": self.render_mode,
+            "max_episode_steps": self.episode_length,
+            "episode_length": self.episode_length,
+        }
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        """`{"bavo": {0: VectorEnv}}`, as LeRobot's default; a clear error for a task that is part of
+        the benchmark but not implemented yet (instead of gymnasium's NameNotFound)."""
+        if self.task not in TASKS:
+            raise NotImplementedError(
+                f"task {self.task!r} is part of BAVO-Bench but not implemented in this version; "
+                f"available: {', '.join(TASKS)}"
+            )
+        return super().create_envs(n_envs=n_envs, use_async_envs=use_async_envs)
