@@ -29,11 +29,19 @@ from lerobot_bavo.envs.pointcloud import (
     camera_pose_from_mujoco,
     intrinsics_from_fovy,
 )
+from lerobot_bavo.envs.occlusion import (
+    OCCLUDER_HALF_EXTENTS,
+    OccluderPlacer,
+    OcclusionEvent,
+    OcclusionSchedule,
+    stage_index,
+)
 from lerobot_bavo.envs.tasks import Task, make_task
+from lerobot_bavo.envs.visibility import CVGAccumulator, TargetVisibility
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.kinematics import make_arm_kinematics
 from lerobot_bavo.sim.rendering import SceneRenderer
-from lerobot_bavo.sim.scene import build_base_spec
+from lerobot_bavo.sim.scene import add_occluder, build_base_spec
 
 CONDITIONS = ("clean", "stage", "random")
 POINT_FRAMES = ("base", "camera")
@@ -69,6 +77,12 @@ class BavoEnv(gym.Env):
             so because `gym.make` keeps a `max_episode_steps` keyword for its TimeLimit wrapper.
         render_mode: "rgb_array" (third-person view beside the active view) or None.
         render_height: height of each of the two panels of `render()`.
+        compute_cvg: render the frozen-camera counterfactual every step of an open recovery
+            window and report CVG (default: only under "random", the condition the paper
+            reports CVG for). The realised visibility of the current target is always recorded
+            under occluded conditions.
+        visibility_scale: resolution of the privileged visibility renders relative to the
+            observation image (V is a pixel ratio; 0.5 keeps it cheap).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": C.CONTROL_HZ}
@@ -85,13 +99,11 @@ class BavoEnv(gym.Env):
         episode_length: int | None = None,
         render_mode: str | None = "rgb_array",
         render_height: int = 240,
+        compute_cvg: bool | None = None,
+        visibility_scale: float = 0.5,
     ):
         if condition not in CONDITIONS:
             raise ValueError(f"unknown condition {condition!r}; expected one of {CONDITIONS}")
-        if condition != "clean":
-            raise NotImplementedError(
-                f"condition {condition!r} (occlusion) is not implemented in this version; use 'clean'"
-            )
         if point_frame not in POINT_FRAMES:
             raise ValueError(f"unknown point_frame {point_frame!r}; expected one of {POINT_FRAMES}")
         if render_mode not in (None, "rgb_array"):
@@ -113,6 +125,10 @@ class BavoEnv(gym.Env):
         spec.visual.global_.offwidth = max(640, image_width, 4 * render_height // 3)
         spec.visual.global_.offheight = max(480, image_height, render_height)
         self.task.build(spec)
+        self.occluded = condition != "clean"
+        if self.occluded:
+            add_occluder(spec, OCCLUDER_HALF_EXTENTS)
+        self.compute_cvg = (condition == "random") if compute_cvg is None else bool(compute_cvg and self.occluded)
         self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
         self.task.bind(self.model)
@@ -123,6 +139,8 @@ class BavoEnv(gym.Env):
         self._grip_adr = [self.model.jnt_qposadr[self.model.joint(f"{p}finger_a").id] for p in ("left_", "right_")]
         self._camera_id = self.model.camera(C.ACTIVE_CAMERA).id
         self._K = intrinsics_from_fovy(fovy, image_height, image_width)
+        self._vis_size = (max(16, int(round(image_height * visibility_scale))),
+                          max(16, int(round(image_width * visibility_scale))))
 
         lo, hi = C.action_bounds()
         self.action_space = gym.spaces.Box(lo, hi, dtype=np.float32)
@@ -141,6 +159,13 @@ class BavoEnv(gym.Env):
         self._elapsed = 0
         self._tracker = None
         self._flags: dict[str, bool] = {}
+        self._visibility: TargetVisibility | None = None
+        self._placer: OccluderPlacer | None = None
+        self._schedule: OcclusionSchedule | None = None
+        self._events: list[OcclusionEvent] = []
+        self._cvg = CVGAccumulator()
+        self._step_visibility: float | None = None
+        self._episode_summary: dict | None = None
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -160,6 +185,13 @@ class BavoEnv(gym.Env):
         self._tracker = MilestoneTracker()
         self._flags = self.task.evaluate(self.model, self.data)
         self._tracker.update(self._flags, 0)
+        self._events = []
+        self._cvg = CVGAccumulator()
+        self._episode_summary = None
+        if self.occluded:
+            # Drawn after the task's reset, so a seed gives the same layout under every condition.
+            self._schedule = OcclusionSchedule.sample(self.condition, self.task.stage_transitions, self.np_random)
+            self._update_occlusion()
         return self._observation(), self._info()
 
     def step(self, action):
@@ -168,6 +200,10 @@ class BavoEnv(gym.Env):
         depth = self._tracker.update(self._flags, self._elapsed)
         terminated = self._tracker.success
         truncated = self._elapsed >= self.max_episode_steps and not terminated
+        if self.occluded:
+            self._update_occlusion()
+        if terminated or truncated:
+            self._episode_summary = self._cvg.close_episode()
         return self._observation(), depth / 5.0, terminated, truncated, self._info()
 
     def render(self):
@@ -181,10 +217,74 @@ class BavoEnv(gym.Env):
         return np.concatenate([third, active], axis=1)
 
     def close(self):
-        for r in (self._renderer, self._video_renderer):
+        for r in (self._renderer, self._video_renderer, self._visibility):
             if r is not None:
                 r.close()
-        self._renderer = self._video_renderer = None
+        self._renderer = self._video_renderer = self._visibility = None
+        self._placer = None
+
+    # ------------------------------------------------------------------ occlusion
+    @property
+    def visibility_probe(self) -> TargetVisibility:
+        """Privileged visibility renders (lazily created; experts may use it for view search)."""
+        if self._visibility is None:
+            self._visibility = TargetVisibility(self.model, self._camera_id, *self._vis_size, self.obs_settings.fovy)
+        return self._visibility
+
+    @property
+    def current_event(self) -> OcclusionEvent | None:
+        return self._events[-1] if self._events else None
+
+    def current_target_geoms(self) -> tuple[int, ...]:
+        event = self.current_event
+        return self.task.target_geoms[event.target] if event is not None else ()
+
+    def occluder_panel(self):
+        """(centre, rotation, (a_y, a_z)) of the current occluder, or None."""
+        event = self.current_event
+        if event is None:
+            return None
+        return event.occluder_pos, event.occluder_rot, (OCCLUDER_HALF_EXTENTS[1], OCCLUDER_HALF_EXTENTS[2])
+
+    def _start_event(self) -> None:
+        if self._placer is None:
+            robot = [g for g in range(self.model.ngeom) if self.model.geom_group[g] == C.GROUP_ROBOT]
+            others = [g for g in range(self.model.ngeom)
+                      if self.model.geom_group[g] == C.GROUP_OBJECT and self.model.geom_contype[g]]
+            others.append(self.model.geom("table").id)
+            self._placer = OccluderPlacer(self.model, self.data, self.visibility_probe, robot, others)
+        stage = stage_index(self._tracker.depth, self.task.stage_transitions)
+        target = self.task.stage_targets[stage]
+        centre, rot, v, fallback = self._placer.place(self.task.target_geoms[target], self._camera_id)
+        step = self._elapsed
+        self._events.append(OcclusionEvent(
+            index=len(self._events), step=step, target=target, occluder_pos=centre, occluder_rot=rot,
+            camera_pos=self.data.cam_xpos[self._camera_id].copy(),
+            camera_xmat=self.data.cam_xmat[self._camera_id].reshape(3, 3).copy(),
+            visibility=v, fallback=fallback,
+        ))
+        self._cvg.end_open_events(step)
+        self._cvg.start_event(step, target)
+
+    def _update_occlusion(self) -> None:
+        """Start an event if one is due, then record this step's visibility samples."""
+        step = self._elapsed
+        started = self._schedule.due(step, self._tracker.depth)
+        if started:
+            self._start_event()
+        event = self.current_event
+        geoms = self.task.target_geoms[event.target]
+        panel = self.occluder_panel()
+        v_real = self.visibility_probe.visibility(self.data, geoms, panel)
+        self._step_visibility = v_real
+        if self.compute_cvg and self._cvg.open_events(step):
+            if step == event.step:
+                v_frozen = v_real  # the camera has not moved yet: same pose, same state
+            else:
+                v_frozen = self.visibility_probe.visibility(
+                    self.data, geoms, panel, camera_pose=(event.camera_pos, event.camera_xmat))
+            self._cvg.record(step, v_real, v_frozen)
+        self._event_started = started
 
     # ------------------------------------------------------------------ helpers
     def simulate(self, action) -> None:
@@ -257,7 +357,7 @@ class BavoEnv(gym.Env):
         }
 
     def _info(self) -> dict:
-        return {
+        info = {
             "progress": self._tracker.depth,
             "is_success": bool(self._tracker.success),
             "milestones": dict(self._flags),
@@ -265,3 +365,17 @@ class BavoEnv(gym.Env):
             "elapsed_steps": self._elapsed,
             "object_poses": self.task.object_poses(self.model, self.data),
         }
+        if self.occluded:
+            event = self.current_event
+            info["occlusion"] = {
+                "condition": self.condition,
+                "event": event.to_info(),
+                "event_started": self._event_started,
+                "num_events": len(self._events),
+                "target": event.target,
+                "visibility": self._step_visibility,
+                "triggers": list(self._schedule.triggers),
+            }
+        if self._episode_summary is not None:
+            info["cvg"] = self._episode_summary
+        return info

@@ -1,10 +1,22 @@
-"""Occlusion conditions: intervention schedules (and, later, occluder placement). Appendix A.
+"""Occlusion conditions (paper Sec. 3.1, App. A): when events happen and where the occluder goes.
 
-Import-light (numpy only). Every random draw takes an explicit ``np.random.Generator`` so that a
-seeded ``reset`` reproduces the schedule.
+- Schedules: Clean has no event; Stage has one at reset and one at each of the task's two
+  stage transitions; Random-time has one at reset and one trigger sampled in each of six windows.
+  An event's target is the task's Stage target for the stage reached at that time.
+- Placement: candidate poses for a thin camera-facing panel on the line of sight from the active
+  camera to the target; the first candidate (in a fixed order) that suppresses the target's
+  visibility to V <= `VISIBILITY_THRESHOLD` and keeps clearance from the robot, the objects and
+  the table is accepted; otherwise the best-suppressing clear candidate is used and the event is
+  flagged as a fallback. The occluder is a mocap body with no collision (contype = conaffinity
+  = 0): a purely visual obstacle that can never push objects or arms.
+
+Every random draw takes an explicit ``np.random.Generator`` so that a seeded ``reset``
+reproduces the whole schedule.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -12,6 +24,13 @@ __all__ = [
     "RANDOM_TRIGGER_WINDOWS",
     "MIN_TRIGGER_GAP",
     "sample_random_triggers",
+    "VISIBILITY_THRESHOLD",
+    "OCCLUDER_HALF_EXTENTS",
+    "OcclusionSchedule",
+    "OcclusionEvent",
+    "stage_index",
+    "panel_rotation_facing",
+    "candidate_placements",
 ]
 
 # --- schedules ---
@@ -75,3 +94,188 @@ def sample_random_triggers(
         f"could not sample triggers in windows {windows} with gaps > {min_gap} after "
         f"{_MAX_ROUNDS * _BATCH} candidates; the windows are (nearly) infeasible"
     )
+
+
+def stage_index(depth: int, transitions: tuple[int, int]) -> int:
+    """Which Stage target applies at milestone depth `depth` (0 initial, 1 after the first
+    transition milestone, 2 after the second)."""
+    return int(depth >= transitions[0]) + int(depth >= transitions[1])
+
+
+@dataclass
+class OcclusionSchedule:
+    """When occlusion events happen in one episode.
+
+    Args:
+        condition: "clean", "stage" or "random".
+        transitions: the task's two Stage transition milestones.
+        triggers: Random-time trigger steps (sampled at reset); empty otherwise.
+    """
+
+    condition: str
+    transitions: tuple[int, int]
+    triggers: list[int] = field(default_factory=list)
+    _stage_fired: int = 0
+
+    @classmethod
+    def sample(cls, condition: str, transitions: tuple[int, int], rng: np.random.Generator) -> "OcclusionSchedule":
+        triggers = sample_random_triggers(rng) if condition == "random" else []
+        return cls(condition, tuple(transitions), triggers)
+
+    def due(self, step: int, depth: int) -> bool:
+        """Whether an event starts at control step `step` given the milestone depth reached.
+
+        Step 0 (reset) always starts the initial event under stage and random. Stage fires once
+        per transition milestone, when it is first reached.
+        """
+        if self.condition == "clean":
+            return False
+        if step == 0:
+            return True
+        if self.condition == "random":
+            return step in self.triggers
+        stage = stage_index(depth, self.transitions)
+        if stage > self._stage_fired:
+            self._stage_fired = stage
+            return True
+        return False
+
+
+# --- placement ---
+
+# Accept a placement only if it leaves at most this fraction of the target's unoccluded pixels
+# visible (V_e <= 0.2).
+VISIBILITY_THRESHOLD = 0.2
+# The occluder: a thin panel (a board or a hand-sized plate), half extents in metres along its
+# normal (x), width (y) and height (z).
+OCCLUDER_HALF_EXTENTS = (0.003, 0.075, 0.075)
+# Clearance the panel keeps from robot geoms, and from objects and the table, in metres.
+ROBOT_CLEARANCE = 0.03
+OBJECT_CLEARANCE = 0.01
+# Candidate distances from the camera centre along the line of sight (metres), tried from far to
+# near (a far occluder sits in the workspace like a real obstacle; near ones cover more), and
+# small lateral shifts (metres) in the panel plane.
+CANDIDATE_DISTANCES = (0.32, 0.27, 0.23, 0.19, 0.16, 0.13, 0.11)
+CANDIDATE_SHIFTS = ((0.0, 0.0), (0.0, 0.03), (0.0, -0.03), (0.03, 0.0), (-0.03, 0.0))
+MAX_FRACTION_OF_TARGET_DISTANCE = 0.75
+
+
+def panel_rotation_facing(direction: np.ndarray) -> np.ndarray:
+    """Panel rotation (columns: normal, width, height) whose normal is along `direction` (the
+    camera-to-target viewing direction) and whose height axis is as close to world +z as
+    possible."""
+    n = np.asarray(direction, float)
+    n = n / np.linalg.norm(n)
+    up = np.array([0.0, 0.0, 1.0])
+    width = np.cross(up, n)
+    if np.linalg.norm(width) < 1e-6:  # looking straight down: any width axis will do
+        width = np.array([1.0, 0.0, 0.0])
+    width /= np.linalg.norm(width)
+    height = np.cross(n, width)
+    return np.column_stack([n, width, height])
+
+
+def candidate_placements(camera_pos: np.ndarray, target_pos: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Candidate (centre, rotation) poses on the camera-to-target line of sight, in trial order."""
+    camera_pos = np.asarray(camera_pos, float)
+    view = np.asarray(target_pos, float) - camera_pos
+    dist = float(np.linalg.norm(view))
+    rot = panel_rotation_facing(view)
+    out = []
+    for d in CANDIDATE_DISTANCES:
+        if d > MAX_FRACTION_OF_TARGET_DISTANCE * dist:
+            continue
+        for dy, dz in CANDIDATE_SHIFTS:
+            centre = camera_pos + view / dist * d + rot[:, 1] * dy + rot[:, 2] * dz
+            out.append((centre, rot))
+    return out
+
+
+@dataclass
+class OcclusionEvent:
+    """One intervention: where the occluder went and what it hid (privileged, for `info`)."""
+
+    index: int
+    step: int
+    target: str
+    occluder_pos: np.ndarray
+    occluder_rot: np.ndarray
+    camera_pos: np.ndarray  # active camera at the event start, base frame
+    camera_xmat: np.ndarray  # (3, 3) MuJoCo camera rotation at the event start
+    visibility: float  # V_e right after placement, from the event-start camera
+    fallback: bool  # no candidate met the threshold and clearance; best clear one used
+
+    def to_info(self) -> dict:
+        return {"index": self.index, "step": self.step, "target": self.target,
+                "occluder_pos": self.occluder_pos.copy(), "visibility_at_start": self.visibility,
+                "fallback": self.fallback}
+
+
+class OccluderPlacer:
+    """Places the occluder panel for an event (App. A "Occluder placement").
+
+    Candidates come from `candidate_placements` in a fixed order. A candidate is clear if the
+    panel keeps `ROBOT_CLEARANCE` from every robot geom (links and grippers of all three arms)
+    and `OBJECT_CLEARANCE` from task objects and the table (signed distances from
+    `mujoco.mj_geomDistance`). The first clear candidate with V_e <= `VISIBILITY_THRESHOLD`
+    (from the current camera) is accepted. If none qualifies, the clear candidate with the
+    lowest V_e is used, or, if none is clear, the first candidate; both are flagged `fallback`.
+    Deterministic: no randomness is involved.
+
+    Args:
+        model, data: the env's simulation (only the occluder's mocap pose and derived
+            kinematics are written).
+        visibility: the env's `TargetVisibility` probe.
+        robot_geoms, other_geoms: geom ids to keep clear of.
+    """
+
+    def __init__(self, model, data, visibility, robot_geoms, other_geoms):
+        import mujoco
+
+        self._mj = mujoco
+        self.model, self.data = model, data
+        self.visibility = visibility
+        self.body = model.body("occluder").id
+        self.mocap = model.body_mocapid[self.body]
+        self.geom = model.geom("occluder_geom").id
+        self.half = (OCCLUDER_HALF_EXTENTS[1], OCCLUDER_HALF_EXTENTS[2])
+        self.robot_geoms = np.asarray(robot_geoms)
+        self.other_geoms = np.asarray(other_geoms)
+
+    def set_pose(self, centre: np.ndarray, rot: np.ndarray) -> None:
+        quat = np.zeros(4)
+        self._mj.mju_mat2Quat(quat, np.ascontiguousarray(rot).reshape(9))
+        self.data.mocap_pos[self.mocap] = centre
+        self.data.mocap_quat[self.mocap] = quat
+        self._mj.mj_kinematics(self.model, self.data)
+
+    def _clear(self) -> bool:
+        for geoms, margin in ((self.robot_geoms, ROBOT_CLEARANCE), (self.other_geoms, OBJECT_CLEARANCE)):
+            for g in geoms:
+                if self._mj.mj_geomDistance(self.model, self.data, self.geom, int(g), margin, None) < margin:
+                    return False
+        return True
+
+    def place(self, target_geoms, camera_id: int) -> tuple[np.ndarray, np.ndarray, float, bool]:
+        """Place the panel for `target_geoms`; returns (centre, rotation, V_e, fallback)."""
+        target_pos = self.data.geom_xpos[np.asarray(target_geoms)].mean(axis=0)
+        camera_pos = self.data.cam_xpos[camera_id].copy()
+        candidates = candidate_placements(camera_pos, target_pos)
+        if not candidates:  # target closer than the nearest candidate distance allows
+            candidates = [(camera_pos + 0.5 * (target_pos - camera_pos), panel_rotation_facing(target_pos - camera_pos))]
+        best = None
+        for centre, rot in candidates:
+            self.set_pose(centre, rot)
+            if not self._clear():
+                continue
+            v = self.visibility.visibility(self.data, target_geoms, (centre, rot, self.half))
+            if v <= VISIBILITY_THRESHOLD:
+                return centre, rot, v, False
+            if best is None or v < best[2]:
+                best = (centre, rot, v)
+        if best is None:
+            centre, rot = candidates[0]
+            self.set_pose(centre, rot)
+            best = (centre, rot, self.visibility.visibility(self.data, target_geoms, (centre, rot, self.half)))
+        self.set_pose(best[0], best[1])
+        return best[0], best[1], best[2], True

@@ -32,12 +32,15 @@ def _discover() -> dict[str, type[ScriptedExpert]]:
 EXPERTS: dict[str, type[ScriptedExpert]] = _discover()
 
 
-def make_expert(env, seed: int | None = None) -> ScriptedExpert:
-    """The scripted expert for `env`'s task. Call `reset()` on it after every `env.reset()`."""
+def make_expert(env, seed: int | None = None, frozen_camera: bool = False) -> ScriptedExpert:
+    """The scripted expert for `env`'s task. Call `reset()` on it after every `env.reset()`.
+
+    `frozen_camera=True` gives the reference variant whose camera arm never moves.
+    """
     name = env.unwrapped.task.name
     if name not in EXPERTS:
         raise NotImplementedError(f"no scripted expert for task {name!r}; available: {', '.join(EXPERTS)}")
-    return EXPERTS[name](env, seed=seed)
+    return EXPERTS[name](env, seed=seed, frozen_camera=frozen_camera)
 
 
 __all__ = ["EXPERTS", "ScriptedExpert", "make_expert"]

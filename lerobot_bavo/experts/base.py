@@ -115,19 +115,36 @@ class CameraController:
 class ScriptedExpert(abc.ABC):
     """Privileged scripted expert: `reset()` after `env.reset()`, then `act(obs, info)` per step.
 
+    Camera behaviour: the camera arm looks at the task's view points from a set point. When an
+    occlusion event starts (privileged: the env's current event), the expert pauses its
+    manipulation script (the arms hold their last targets), searches candidate camera positions
+    around the current one for the view that best reveals the occluded target (visibility
+    renders from each candidate, only for reachable poses), moves the camera there smoothly,
+    waits until it has settled, makes that position its new set point, and resumes the script,
+    as the paper's demonstrations do (Sec. 3.2).
+
     Args:
         env: a `BavoEnv` (or a wrapper around one); privileged state is read from it.
         seed: if given, the expert varies its motion durations by up to +-`speed_jitter`, drawn
             from its own generator, so collected demonstrations differ in timing. None keeps
             the nominal timing.
+        frozen_camera: reference variant whose camera arm never moves (same manipulation, no
+            look-at tracking, no recovery).
     """
 
     task_name: str = ""  # the benchmark task this expert solves
     speed_jitter = 0.15
+    # View search: lateral / vertical / along-view offsets (metres) of the camera set point.
+    search_lateral = (-0.2, -0.12, 0.12, 0.2)
+    search_vertical = (-0.08, 0.0, 0.08)
+    search_depth = (0.0, 0.08)
+    recovery_settle_tol = 0.03  # rad, camera joints within this of their goal
+    recovery_max_steps = 45  # control steps spent on one recovery at most
 
-    def __init__(self, env, seed: int | None = None):
+    def __init__(self, env, seed: int | None = None, frozen_camera: bool = False):
         self.env = env.unwrapped
         self.seed = seed
+        self.frozen_camera = frozen_camera
         self.rng = np.random.default_rng(seed) if seed is not None else None
         self._script: Generator | None = None
         self.phase = "idle"
@@ -143,17 +160,31 @@ class ScriptedExpert(abc.ABC):
         self._script = self.script()
         self.done = False
         self.phase = "start"
+        self._seen_event = -1
+        self._recovery: dict | None = None
+        self.recoveries: list[dict] = []  # what each recovery did (for logs and tests)
 
     def act(self, obs=None, info=None) -> np.ndarray:
         if self._script is None:
             raise RuntimeError("call expert.reset() after env.reset() before act()")
+        if self.frozen_camera:
+            self._advance_script()
+            return self.action(self.camera.q.copy())
+        event = getattr(self.env, "current_event", None)
+        if event is not None and event.index != self._seen_event:
+            self._seen_event = event.index
+            self._recovery = self._plan_recovery(event)
+        if self._recovery is not None:
+            return self.action(self._recovery_step())
+        self._advance_script()
+        return self.action(self.camera.track(self.look_at()))
+
+    def _advance_script(self) -> None:
         if not self.done:
             try:
                 next(self._script)
             except StopIteration:
                 self.done = True
-        cam_q = self.camera.track(self.look_at())
-        return self.action(cam_q)
 
     def action(self, cam_q: np.ndarray) -> np.ndarray:
         a = np.empty(C.ACTION_DIM)
@@ -163,6 +194,57 @@ class ScriptedExpert(abc.ABC):
         a[C.RIGHT_GRIPPER] = self.right.gripper
         a[C.CAMERA_ARM] = cam_q
         return a
+
+    # -- camera recovery --------------------------------------------------------------------
+    def _plan_recovery(self, event) -> dict:
+        """Best reachable camera set point for seeing `event`'s target past its occluder."""
+        env = self.env
+        geoms = env.task.target_geoms[event.target]
+        target = env.data.geom_xpos[np.asarray(geoms)].mean(axis=0)
+        panel = env.occluder_panel()
+        kin = self.camera.kin
+        here = self.camera.position
+        view = target - here
+        view_flat = np.array([view[0], view[1], 0.0])
+        forward = view_flat / max(np.linalg.norm(view_flat), 1e-6)
+        lateral = np.cross([0.0, 0.0, 1.0], forward)
+        best = None
+        for dl in (0.0, *self.search_lateral):
+            for dz in self.search_vertical:
+                for dd in self.search_depth:
+                    pos = here + dl * lateral + dz * np.array([0.0, 0.0, 1.0]) + dd * forward
+                    rot = CameraController.look_rotation(pos, target)
+                    res = kin.ik(pos, rot, q_init=self.camera.q, rot_weight=0.5, nullspace_gain=0.2)
+                    if not res.converged:
+                        continue
+                    v = env.visibility_probe.visibility(env.data, geoms, panel, camera_pose=(pos, rot))
+                    cost = float(np.abs(res.qpos - self.camera.q).sum())
+                    key = (round(v, 2), -cost)
+                    if best is None or key > best[0]:
+                        best = (key, pos, res.qpos, v)
+        phase = self.phase
+        self.phase = "recover_view"
+        if best is None:  # nothing reachable: keep the current view
+            plan = {"event": event.index, "goal": self.camera.q.copy(), "position": here.copy(),
+                    "look_at": target, "visibility": None, "steps": 0, "resume_phase": phase}
+        else:
+            plan = {"event": event.index, "goal": best[2], "position": best[1], "look_at": target,
+                    "visibility": best[3], "steps": 0, "resume_phase": phase}
+        self.recoveries.append(plan)
+        return plan
+
+    def _recovery_step(self) -> np.ndarray:
+        plan = self._recovery
+        plan["steps"] += 1
+        cam = self.camera
+        cam.q = cam.q + np.clip(plan["goal"] - cam.q, -cam.max_delta, cam.max_delta)
+        actual = self.env.joint_state()[C.CAMERA_ARM]
+        settled = np.max(np.abs(actual - plan["goal"])) < self.recovery_settle_tol
+        if settled or plan["steps"] >= self.recovery_max_steps:
+            cam.position = plan["position"].copy()
+            self.phase = plan["resume_phase"]
+            self._recovery = None
+        return cam.q.copy()
 
     # -- script primitives ------------------------------------------------------------------
     def duration(self, steps: int) -> int:

@@ -82,9 +82,7 @@ class SceneRenderer:
         self._update(data, camera, pose, hidden_groups)
         mujoco.mjr_render(self._rect, self._scene, self._ctx)
         mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, self._ctx)
-        near, far = self._near, self._far
-        depth = near / (1.0 - self._depth * (1.0 - near / far))
-        return np.flipud(self._rgb).copy(), np.flipud(depth).astype(np.float32)
+        return np.flipud(self._rgb).copy(), np.flipud(self._metric_depth(self._depth)).astype(np.float32)
 
     def render_rgb(self, data: mujoco.MjData, camera: str | int, pose=None, hidden_groups=()) -> np.ndarray:
         self._update(data, camera, pose, hidden_groups)
@@ -93,14 +91,15 @@ class SceneRenderer:
         return np.flipud(self._rgb).copy()
 
     def render_segmentation(self, data: mujoco.MjData, camera: str | int, pose=None,
-                            hidden_groups=()) -> np.ndarray:
-        """Geom id per pixel (H, W) int32; -1 where no geom is seen."""
+                            hidden_groups=(), with_depth: bool = False):
+        """Geom id per pixel (H, W) int32, -1 where no geom is seen; with `with_depth`, also the
+        z-depth (H, W) float32 in metres from the same pass."""
         self._update(data, camera, pose, hidden_groups)
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
         self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
         try:
             mujoco.mjr_render(self._rect, self._scene, self._ctx)
-            mujoco.mjr_readPixels(self._rgb, None, self._rect, self._ctx)
+            mujoco.mjr_readPixels(self._rgb, self._depth if with_depth else None, self._rect, self._ctx)
         finally:
             self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
             self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
@@ -113,7 +112,14 @@ class SceneRenderer:
             if g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
                 lut[i] = g.objid
         segid = np.where((segid >= 0) & (segid < ngeom), segid, ngeom)
-        return lut[segid]
+        seg = lut[segid]
+        if not with_depth:
+            return seg
+        return seg, np.flipud(self._metric_depth(self._depth)).astype(np.float32)
+
+    def _metric_depth(self, zbuffer: np.ndarray) -> np.ndarray:
+        near, far = self._near, self._far
+        return near / (1.0 - zbuffer * (1.0 - near / far))
 
     def close(self) -> None:
         if self._gl is not None:

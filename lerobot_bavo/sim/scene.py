@@ -70,3 +70,19 @@ def build_base_spec(fovy: float = C.ACTIVE_CAMERA_FOVY) -> mujoco.MjSpec:
     add_manipulator(spec, C.RIGHT_MOUNT)
     add_camera_arm(spec, fovy=fovy)
     return spec
+
+
+OCCLUDER_BODY = "occluder"
+OCCLUDER_GEOM = "occluder_geom"
+
+
+def add_occluder(spec: mujoco.MjSpec, half_extents) -> None:
+    """The benchmark occluder: a mocap panel in its own geom group with no collision at all.
+
+    It is a purely visual obstacle (contype = conaffinity = 0), so it never pushes objects or
+    arms; counterfactual renders drop its group (`GROUP_OCCLUDER`). Only occluded conditions
+    build it.
+    """
+    body = spec.worldbody.add_body(name=OCCLUDER_BODY, mocap=True, pos=[0, 0, 1.0])
+    body.add_geom(name=OCCLUDER_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half_extents),
+                  rgba=[0.16, 0.42, 0.46, 1], group=C.GROUP_OCCLUDER, contype=0, conaffinity=0, mass=0.1)
