@@ -10,6 +10,9 @@ A camera pose can be overridden for a render (counterfactual views for CVG) with
 
 from __future__ import annotations
 
+import atexit
+import weakref
+
 import mujoco
 import numpy as np
 
@@ -37,6 +40,12 @@ class SceneRenderer:
         self._gl = mujoco.GLContext(width, height)
         self._gl.make_current()
         self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+        # Free the GL context when this renderer is collected or, at the latest, at interpreter
+        # exit before EGL itself is terminated (avoids EGL errors from late destructors).
+        # (weakref's own exit hook may run after EGL's eglTerminate hook, so register ours.)
+        self._finalizer = weakref.finalize(self, _release, self._gl, self._ctx)
+        self._finalizer.atexit = False
+        atexit.register(self._finalizer)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
         self._scene = mujoco.MjvScene(model, maxgeom=2000)
         self._opt = mujoco.MjvOption()
@@ -122,14 +131,10 @@ class SceneRenderer:
         return near / (1.0 - zbuffer * (1.0 - near / far))
 
     def close(self) -> None:
-        if self._gl is not None:
-            self._gl.make_current()
-            self._ctx.free()
-            self._gl.free()
-            self._gl = None
+        self._finalizer()
 
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn down GL already
-            pass
+
+def _release(gl, ctx) -> None:
+    gl.make_current()
+    ctx.free()
+    gl.free()

@@ -1,0 +1,208 @@
+"""`bavo-eval`: evaluate a policy on BAVO-Bench tasks x conditions x seeds.
+
+Writes, under --output-dir:
+  results.json   the run's settings and, for every (task, condition) cell: sr (%), tps (%),
+                 cvg (pp; null where no event was retained, i.e. outside Random-time), joint
+                 (SR x CVG / 100), n_episodes, and the per-episode records;
+  results.md     the same as a Markdown table, with macro averages over tasks per condition;
+  episodes.jsonl one line per finished episode (the resume log);
+  videos/        the first --videos episodes of every cell, occlusion events marked in red.
+
+Resumable: finished episodes (and so finished cells) found in --output-dir are kept, and only
+missing ones run. Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
+(the privileged scripted expert with camera recovery) or `expert-frozen-camera` (same
+manipulation, camera arm never moves; its CVG is exactly 0 by construction).
+
+Examples:
+  bavo-eval --policy expert --tasks cube_handoff --conditions clean,stage,random --episodes 20 \\
+      --output-dir outputs/eval/expert
+  bavo-eval --policy outputs/train/afar/checkpoints/last/pretrained_model --episodes 20 \\
+      --output-dir outputs/eval/afar
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+RESULTS_VERSION = 1
+
+
+def _worker_init() -> None:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # torch is a dependency; keep workers usable without it for experts
+        pass
+
+
+_CACHE: dict = {}
+
+
+def _run_job(job: dict) -> dict:
+    """One episode in a worker process; envs and agents are cached per (policy, task, condition)."""
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.eval.rollout import make_agent, run_episode
+
+    key = (job["policy"], job["task"], job["condition"])
+    if key not in _CACHE:
+        for old in _CACHE.values():
+            old[0].close()
+        _CACHE.clear()
+        env = BavoEnv(task=job["task"], condition=job["condition"], compute_cvg=job["condition"] == "random")
+        _CACHE[key] = (env, make_agent(job["policy"], env))
+    env, agent = _CACHE[key]
+    video = Path(job["video"]) if job.get("video") else None
+    t0 = time.perf_counter()
+    record = run_episode(env, agent, job["seed"], video_path=video)
+    record["wall_s"] = round(time.perf_counter() - t0, 2)
+    record["task"], record["condition"] = job["task"], job["condition"]
+    return record
+
+
+def summarize_cell(records: list[dict]) -> dict:
+    """SR, TPS, CVG (pp) and Joint of one (task, condition) cell (paper Sec. 3.3, App. A)."""
+    from lerobot_bavo.envs.visibility import aggregate_cvg, joint_score, success_rate, task_progress_score
+
+    sr = success_rate([r["success"] for r in records])
+    tps = task_progress_score([r["progress"] for r in records])
+    cvg = aggregate_cvg([r.get("episode_cvg") for r in records])
+    cvg_pp = None if cvg is None else 100.0 * cvg
+    fallbacks = sum(p["fallback"] for r in records for p in r.get("placements", []))
+    return {"sr": sr, "tps": tps, "cvg": cvg_pp, "joint": joint_score(sr, cvg_pp),
+            "n_episodes": len(records), "occluder_fallbacks": fallbacks,
+            "episodes": sorted(records, key=lambda r: r["seed"])}
+
+
+def markdown_table(results: dict) -> str:
+    def fmt(x):
+        return "-" if x is None else f"{x:.1f}"
+
+    lines = [f"Policy: `{results['policy']}`, {results['episodes']} episodes per cell, seeds from {results['seed']}.", "",
+             "| task | condition | SR (%) | TPS (%) | CVG (pp) | Joint |", "|---|---|---|---|---|---|"]
+    cells = results["cells"]
+    for task in results["tasks"]:
+        for cond in results["conditions"]:
+            c = cells.get(f"{task}/{cond}")
+            if c:
+                lines.append(f"| {task} | {cond} | {fmt(c['sr'])} | {fmt(c['tps'])} | {fmt(c['cvg'])} | {fmt(c['joint'])} |")
+    for cond in results["conditions"]:
+        cs = [cells[f"{t}/{cond}"] for t in results["tasks"] if f"{t}/{cond}" in cells]
+        if len(cs) > 1:
+            mean = lambda key: (None if any(c[key] is None for c in cs) else sum(c[key] for c in cs) / len(cs))  # noqa: E731
+            lines.append(f"| **mean** | {cond} | {fmt(mean('sr'))} | {fmt(mean('tps'))} | {fmt(mean('cvg'))} | {fmt(mean('joint'))} |")
+    return "\n".join(lines) + "\n"
+
+
+def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
+             output_dir: Path, workers: int = 1, videos: int = 1) -> dict:
+    """Run (or resume) the evaluation and write results.json / results.md; returns the results."""
+    from tqdm import tqdm
+
+    from lerobot_bavo.envs.bavo_env import CONDITIONS
+    from lerobot_bavo.envs.tasks import TASK_NAMES, TASKS
+    from lerobot_bavo.eval.rollout import EXPERT_POLICIES
+
+    for t in tasks:
+        if t not in TASK_NAMES:
+            raise SystemExit(f"bavo-eval: unknown task {t!r}; choose from {', '.join(TASK_NAMES)}")
+        if t not in TASKS:
+            raise SystemExit(f"bavo-eval: task {t!r} is not implemented in this version ({', '.join(TASKS)} are)")
+    for c in conditions:
+        if c not in CONDITIONS:
+            raise SystemExit(f"bavo-eval: unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
+    if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
+        raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
+                         "nor a LeRobot checkpoint directory containing config.json")
+    policy_id = policy if policy in EXPERT_POLICIES else str(Path(policy).resolve())
+
+    output_dir.mkdir(parents=True, exist_ok=True)
+    log_path = output_dir / "episodes.jsonl"
+    settings_path = output_dir / "run.json"
+    settings = {"policy": policy_id, "seed": seed}
+    if settings_path.exists():
+        previous = json.loads(settings_path.read_text())
+        if previous != settings:
+            raise SystemExit(f"bavo-eval: {output_dir} holds a run with different settings {previous}; "
+                             "use another --output-dir")
+    settings_path.write_text(json.dumps(settings))
+
+    done: dict[tuple[str, str, int], dict] = {}
+    if log_path.exists():
+        for line in log_path.read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                done[(r["task"], r["condition"], r["seed"])] = r
+    jobs = []
+    for task in tasks:
+        for cond in conditions:
+            for i in range(episodes):
+                s = seed + i
+                if (task, cond, s) in done:
+                    continue
+                video = str(output_dir / "videos" / f"{task}_{cond}_seed{s}.mp4") if i < videos else None
+                jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video})
+    if done:
+        print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
+
+    with open(log_path, "a") as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
+        if workers > 1 and jobs:
+            with ProcessPoolExecutor(max_workers=workers, initializer=_worker_init) as pool:
+                for record in pool.map(_run_job, jobs):
+                    done[(record["task"], record["condition"], record["seed"])] = record
+                    log.write(json.dumps(record) + "\n")
+                    log.flush()
+                    bar.update(1)
+        else:
+            _worker_init()
+            for job in jobs:
+                record = _run_job(job)
+                done[(record["task"], record["condition"], record["seed"])] = record
+                log.write(json.dumps(record) + "\n")
+                log.flush()
+                bar.update(1)
+
+    cells = {}
+    for task in tasks:
+        for cond in conditions:
+            records = [done[(task, cond, seed + i)] for i in range(episodes)]
+            cells[f"{task}/{cond}"] = summarize_cell(records)
+    results = {"version": RESULTS_VERSION, "policy": policy_id, "tasks": tasks, "conditions": conditions,
+               "episodes": episodes, "seed": seed, "cells": cells}
+    (output_dir / "results.json").write_text(json.dumps(results, indent=1))
+    table = markdown_table(results)
+    (output_dir / "results.md").write_text(table)
+    print(table)
+    return results
+
+
+def main(argv: list[str] | None = None) -> None:
+    from lerobot_bavo.envs.tasks import TASKS
+
+    parser = argparse.ArgumentParser(prog="bavo-eval", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--policy", required=True,
+                        help="LeRobot checkpoint dir (.../pretrained_model), 'expert' or 'expert-frozen-camera'")
+    parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default: all implemented)")
+    parser.add_argument("--conditions", default="clean,stage,random", help="comma-separated conditions")
+    parser.add_argument("--episodes", type=int, default=20, help="episodes per (task, condition) (default 20)")
+    parser.add_argument("--seed", type=int, default=1000, help="first seed (LeRobot's default start seed)")
+    parser.add_argument("--output-dir", type=Path, required=True, help="where results and videos go")
+    parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
+    parser.add_argument("--videos", type=int, default=1, help="episodes recorded per cell (default 1)")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error("--episodes must be >= 1")
+    evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
+             args.output_dir, workers=args.workers, videos=args.videos)
+
+
+if __name__ == "__main__":
+    main()

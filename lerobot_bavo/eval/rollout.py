@@ -1,0 +1,152 @@
+"""Agents (scripted experts or LeRobot checkpoints) and one-episode rollouts on BAVO-Bench.
+
+A rollout returns a JSON-ready record: seed, success, deepest milestone, steps, the episode's
+CVG summary (Random-time) and the occlusion events with their placements. Videos mark the
+first frames after every occlusion event with a red border.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+EXPERT_POLICIES = ("expert", "expert-frozen-camera")
+
+
+class ExpertAgent:
+    """The privileged scripted expert (optionally with a frozen camera) as an agent."""
+
+    def __init__(self, env, frozen_camera: bool = False):
+        from lerobot_bavo.experts import make_expert
+
+        self.expert = make_expert(env, frozen_camera=frozen_camera)
+
+    def reset(self) -> None:
+        self.expert.reset()
+
+    def act(self, obs: dict, info: dict) -> np.ndarray:
+        return self.expert.act(obs, info)
+
+
+class LeRobotPolicyAgent:
+    """A LeRobot checkpoint (`pretrained_model` directory) driving the env, on CPU by default.
+
+    Loading follows `lerobot-eval`: the policy config and weights from the directory, the saved
+    pre/post-processors (normalisation), and LeRobot's own observation conversion
+    (`preprocess_observation`), so results match `lerobot-eval --policy.path=...`.
+    """
+
+    def __init__(self, path: str | Path, env, device: str = "cpu"):
+        import torch
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import make_policy, make_pre_post_processors
+
+        from lerobot_bavo.envs.configs import BavoEnvConfig
+
+        path = Path(path)
+        if not (path / "config.json").is_file():
+            raise FileNotFoundError(f"{path} is not a LeRobot checkpoint directory (no config.json); "
+                                    "pass .../checkpoints/<step>/pretrained_model")
+        self._torch = torch
+        cfg = PreTrainedConfig.from_pretrained(path)
+        cfg.pretrained_path = path
+        cfg.device = device
+        s = env.obs_settings
+        env_cfg = BavoEnvConfig(task=env.task.name, condition=env.condition, image_height=s.image_height,
+                                image_width=s.image_width, n_points=s.n_points, point_frame=s.point_frame)
+        self.policy = make_policy(cfg, env_cfg=env_cfg)
+        self.policy.eval()
+        self.pre, self.post = make_pre_post_processors(
+            policy_cfg=cfg, pretrained_path=str(path),
+            preprocessor_overrides={"device_processor": {"device": device}},
+        )
+        self.task_description = env.task_description
+
+    def reset(self) -> None:
+        self.policy.reset()
+
+    def act(self, obs: dict, info: dict) -> np.ndarray:
+        from lerobot.envs.utils import preprocess_observation
+
+        batched = {k: (v[None] if isinstance(v, np.ndarray) else {kk: vv[None] for kk, vv in v.items()})
+                   for k, v in obs.items()}
+        batch = preprocess_observation(batched)
+        batch["task"] = [self.task_description]
+        batch = self.pre(batch)
+        with self._torch.inference_mode():
+            action = self.policy.select_action(batch)
+        action = self.post(action)
+        return action.squeeze(0).cpu().numpy().astype(np.float64)
+
+
+def make_agent(policy: str, env):
+    if policy == "expert":
+        return ExpertAgent(env)
+    if policy == "expert-frozen-camera":
+        return ExpertAgent(env, frozen_camera=True)
+    return LeRobotPolicyAgent(policy, env)
+
+
+def mark_event(frame: np.ndarray, width: int = 6) -> np.ndarray:
+    """A red border around a frame (marks the frames just after an occlusion event)."""
+    out = frame.copy()
+    red = np.array([220, 30, 30], dtype=np.uint8)
+    out[:width], out[-width:], out[:, :width], out[:, -width:] = red, red, red, red
+    return out
+
+
+def run_episode(env, agent, seed: int, video_path: Path | None = None, video_every: int = 2,
+                mark_steps: int = 12) -> dict:
+    """Roll out one seeded episode; returns its record (and writes a video if asked)."""
+    obs, info = env.reset(seed=seed)
+    agent.reset()
+    frames = []
+    last_event_step = 0 if "occlusion" in info else None
+    placements = [_event_record(info["occlusion"]["event"])] if "occlusion" in info else []
+
+    def grab():
+        frame = env.render()
+        if last_event_step is not None and info["elapsed_steps"] - last_event_step < mark_steps:
+            frame = mark_event(frame)
+        frames.append(frame)
+
+    if video_path is not None:
+        grab()
+    while True:
+        obs, reward, terminated, truncated, info = env.step(agent.act(obs, info))
+        occ = info.get("occlusion")
+        if occ is not None and occ["event_started"]:
+            last_event_step = info["elapsed_steps"]
+            placements.append(_event_record(occ["event"]))
+        if video_path is not None and info["elapsed_steps"] % video_every == 0:
+            grab()
+        if terminated or truncated:
+            break
+    record = {
+        "seed": int(seed),
+        "success": bool(info["is_success"]),
+        "progress": int(info["progress"]),
+        "steps": int(info["elapsed_steps"]),
+    }
+    cvg = info.get("cvg")
+    if cvg is not None:
+        record["episode_cvg"] = cvg["episode_cvg"]
+        record["events"] = cvg["events"]
+    if "occlusion" in info:
+        record["triggers"] = [int(t) for t in info["occlusion"]["triggers"]]
+        record["num_events"] = int(info["occlusion"]["num_events"])
+        record["placements"] = placements
+    if video_path is not None:
+        import imageio.v2 as imageio
+
+        video_path.parent.mkdir(parents=True, exist_ok=True)
+        imageio.mimsave(video_path, frames, fps=max(1, env.metadata["render_fps"] // video_every), macro_block_size=1)
+        record["video"] = str(video_path)
+    return record
+
+
+def _event_record(event: dict) -> dict:
+    return {"index": int(event["index"]), "step": int(event["step"]), "target": event["target"],
+            "visibility_at_start": float(event["visibility_at_start"]), "fallback": bool(event["fallback"]),
+            "occluder_pos": [float(x) for x in event["occluder_pos"]]}
