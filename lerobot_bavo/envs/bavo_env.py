@@ -306,6 +306,9 @@ class BavoEnv(gym.Env):
         for k in range(1, C.CONTROL_SUBSTEPS + 1):
             self.data.ctrl[:] = start + (target - start) * (k / C.CONTROL_SUBSTEPS)
             mujoco.mj_step(self.model, self.data)
+        # mj_step leaves positions, contacts and camera poses from before its last integration;
+        # recompute them so observations, milestones and info all describe the same state.
+        mujoco.mj_forward(self.model, self.data)
         self._ctrl = target
         self._elapsed += 1
 

@@ -24,7 +24,7 @@ CONTROL_HZ = 25  # 1 / CONTROL_DT
 # Table (collision box; the top surface is z = 0)
 # --------------------------------------------------------------------------------------------
 TABLE_HALF_SIZE = (0.61, 0.37, 0.1)
-TABLE_CENTER_Z = -0.1009
+TABLE_CENTER_Z = -TABLE_HALF_SIZE[2]  # top exactly at z = 0 (AV-ALOHA: -0.1009, top at -0.9 mm)
 
 
 @dataclass(frozen=True)

@@ -75,6 +75,47 @@ class ArmKinematics:
         self._set(np.asarray(q, dtype=np.float64))
         return self.data.site_xpos[self.site_id].copy(), self.data.site_xmat[self.site_id].reshape(3, 3).copy()
 
+    def _solve(self, q, target_pos, target_rot, rot_weight, damping, nullspace_gain, iters, pos_tol, rot_tol,
+               max_step, posture_weights):
+        pos_err = rot_err = np.inf
+        for _ in range(iters):
+            self._set(q)
+            mujoco.mj_comPos(self.model, self.data)
+            x = self.data.site_xpos[self.site_id]
+            e_p = target_pos - x
+            pos_err = float(np.linalg.norm(e_p))
+            mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self.site_id)
+            if target_rot is None:
+                err = e_p
+                J = self._jacp[:, self.dof_adr]
+                rot_err = 0.0
+            else:
+                e_r = rotation_error(np.asarray(target_rot), self.data.site_xmat[self.site_id].reshape(3, 3))
+                rot_err = float(np.linalg.norm(e_r))
+                err = np.concatenate([e_p, rot_weight * e_r])
+                J = np.vstack([self._jacp[:, self.dof_adr], rot_weight * self._jacr[:, self.dof_adr]])
+            if pos_err < pos_tol and rot_err < rot_tol:
+                break
+            # min |J dq - err|^2 + damping |dq|^2 + sum_k w_k (q_k + dq_k - home_k)^2
+            H = J.T @ J + np.diag(damping + posture_weights)
+            dq = np.linalg.solve(H, J.T @ err + posture_weights * (self.home - q))
+            if nullspace_gain > 0.0:
+                N = np.eye(self.n) - np.linalg.pinv(J) @ J
+                dq += N @ (nullspace_gain * (self.home - q))
+            step = np.max(np.abs(dq))
+            if step > max_step:
+                dq *= max_step / step
+            q = np.clip(q + dq, self.lower, self.upper)
+        else:
+            # the loop ran out: measure the final iterate
+            self._set(q)
+            x = self.data.site_xpos[self.site_id]
+            pos_err = float(np.linalg.norm(target_pos - x))
+            if target_rot is not None:
+                rot_err = float(np.linalg.norm(rotation_error(np.asarray(target_rot),
+                                                              self.data.site_xmat[self.site_id].reshape(3, 3))))
+        return q, pos_err, rot_err
+
     def fk_matrix(self, q) -> np.ndarray:
         pos, rot = self.fk(q)
         T = np.eye(4)
@@ -95,6 +136,7 @@ class ArmKinematics:
         pos_tol: float = 5e-4,
         rot_tol: float = 5e-3,
         max_step: float = 0.25,
+        refine_iters: int = 20,
     ) -> IKResult:
         """Damped least squares on [position; rot_weight * orientation] error.
 
@@ -103,35 +145,13 @@ class ArmKinematics:
         """
         q = np.array(self.home if q_init is None else q_init, dtype=np.float64)
         target_pos = np.asarray(target_pos, dtype=np.float64)
-        pos_err = rot_err = np.inf
-        for _ in range(max_iters):
-            self._set(q)
-            mujoco.mj_comPos(self.model, self.data)
-            x = self.data.site_xpos[self.site_id]
-            e_p = target_pos - x
-            pos_err = float(np.linalg.norm(e_p))
-            mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self.site_id)
-            if target_rot is None:
-                err = e_p
-                J = self._jacp[:, self.dof_adr]
-                rot_err = 0.0
-            else:
-                e_r = rotation_error(np.asarray(target_rot), self.data.site_xmat[self.site_id].reshape(3, 3))
-                rot_err = float(np.linalg.norm(e_r))
-                err = np.concatenate([e_p, rot_weight * e_r])
-                J = np.vstack([self._jacp[:, self.dof_adr], rot_weight * self._jacr[:, self.dof_adr]])
-            if pos_err < pos_tol and rot_err < rot_tol:
-                break
-            # min |J dq - err|^2 + damping |dq|^2 + sum_k w_k (q_k + dq_k - home_k)^2
-            H = J.T @ J + np.diag(damping + self.posture_weights)
-            dq = np.linalg.solve(H, J.T @ err + self.posture_weights * (self.home - q))
-            if nullspace_gain > 0.0:
-                N = np.eye(self.n) - np.linalg.pinv(J) @ J
-                dq += N @ (nullspace_gain * (self.home - q))
-            step = np.max(np.abs(dq))
-            if step > max_step:
-                dq *= max_step / step
-            q = np.clip(q + dq, self.lower, self.upper)
+        # Stage 1 includes the posture term (it steers the wrist through its singularity); the
+        # posture term biases the optimum slightly, so stage 2 refines without it from there.
+        q, pos_err, rot_err = self._solve(q, target_pos, target_rot, rot_weight, damping, nullspace_gain,
+                                          max_iters, pos_tol, rot_tol, max_step, self.posture_weights)
+        if self.posture_weights.any() and not (pos_err < pos_tol and rot_err < rot_tol):
+            q, pos_err, rot_err = self._solve(q, target_pos, target_rot, rot_weight, damping, nullspace_gain,
+                                              refine_iters, pos_tol, rot_tol, max_step, np.zeros(self.n))
         return IKResult(q, pos_err, rot_err, bool(pos_err < 5 * pos_tol and rot_err < 5 * rot_tol))
 
 

@@ -108,10 +108,10 @@ class CubeHandoff(Task):
             and touching(pairs, self.plate_geoms, self.cube_geoms)
         )
         return {
-            "m1": right_touch,
-            "m2": right_hold and cube_bottom >= LIFT_HEIGHT,
-            "m3": right_hold and left_hold and off_table,
-            "m4": left_hold and not right_touch and off_table,
+            "m1": bool(right_touch),
+            "m2": bool(right_hold and cube_bottom >= LIFT_HEIGHT),
+            "m3": bool(right_hold and left_hold and off_table),
+            "m4": bool(left_hold and not right_touch and off_table),
             "m5": bool(on_plate and speed < REST_SPEED and not left_touch and not right_touch),
         }
 
