@@ -135,6 +135,9 @@ class SceneRenderer:
 
 
 def _release(gl, ctx) -> None:
-    gl.make_current()
-    ctx.free()
-    gl.free()
+    try:
+        gl.make_current()
+        ctx.free()
+        gl.free()
+    except Exception:  # noqa: BLE001 - EGL may already be torn down at interpreter exit
+        pass
