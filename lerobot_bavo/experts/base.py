@@ -134,7 +134,7 @@ class ScriptedExpert(abc.ABC):
 
     task_name: str = ""  # the benchmark task this expert solves
     speed_jitter = 0.15
-    # View search: lateral / vertical / along-view offsets (metres) of the camera set point.
+    # View search: lateral / vertical / along-view offsets (metres) from the camera's home set point.
     search_lateral = (-0.2, -0.12, 0.12, 0.2)
     search_vertical = (-0.08, 0.0, 0.08)
     search_depth = (0.0, 0.08)
@@ -204,24 +204,29 @@ class ScriptedExpert(abc.ABC):
         panel = env.occluder_panel()
         kin = self.camera.kin
         here = self.camera.position
-        view = target - here
+        # Candidates are offsets from the HOME set point (plus staying where we are), so repeated
+        # recoveries cannot walk the camera down into the workspace.
+        home = self.camera.home_pos
+        view = target - home
         view_flat = np.array([view[0], view[1], 0.0])
         forward = view_flat / max(np.linalg.norm(view_flat), 1e-6)
         lateral = np.cross([0.0, 0.0, 1.0], forward)
-        best = None
+        candidates = [here.copy()]
         for dl in (0.0, *self.search_lateral):
             for dz in self.search_vertical:
                 for dd in self.search_depth:
-                    pos = here + dl * lateral + dz * np.array([0.0, 0.0, 1.0]) + dd * forward
-                    rot = CameraController.look_rotation(pos, target)
-                    res = kin.ik(pos, rot, q_init=self.camera.q, rot_weight=0.5, nullspace_gain=0.2)
-                    if not res.converged:
-                        continue
-                    v = env.visibility_probe.visibility(env.data, geoms, panel, camera_pose=(pos, rot))
-                    cost = float(np.abs(res.qpos - self.camera.q).sum())
-                    key = (round(v, 2), -cost)
-                    if best is None or key > best[0]:
-                        best = (key, pos, res.qpos, v)
+                    candidates.append(home + dl * lateral + dz * np.array([0.0, 0.0, 1.0]) + dd * forward)
+        best = None
+        for pos in candidates:
+            rot = CameraController.look_rotation(pos, target)
+            res = kin.ik(pos, rot, q_init=self.camera.q, rot_weight=0.5, nullspace_gain=0.2)
+            if not res.converged:
+                continue
+            v = env.visibility_probe.visibility(env.data, geoms, panel, camera_pose=(pos, rot))
+            cost = float(np.abs(res.qpos - self.camera.q).sum())
+            key = (round(v, 2), -cost)
+            if best is None or key > best[0]:
+                best = (key, pos, res.qpos, v)
         phase = self.phase
         self.phase = "recover_view"
         if best is None:  # nothing reachable: keep the current view
