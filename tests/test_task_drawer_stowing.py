@@ -19,6 +19,7 @@ from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.experts.drawer_stowing import DrawerStowingExpert
 from lerobot_bavo.sim.kinematics import ArmKinematics
+from _helpers import milestone_flags
 
 MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
@@ -104,18 +105,14 @@ def scene(env):
     return Scene(env)
 
 
-def _flags(**true) -> dict[str, bool]:
-    return {f"m{i}": bool(true.get(f"m{i}", False)) for i in range(1, 6)}
-
-
 # --------------------------------------------------------------------------------------------
 # predicates
 # --------------------------------------------------------------------------------------------
 def test_reset_state_has_no_milestone_and_is_at_rest(scene):
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
     block0 = scene.d.body("block").xpos.copy()
     assert scene.task.slide(scene.d) == 0.0
-    assert scene.settle(500) == _flags()
+    assert scene.settle(500) == milestone_flags()
     assert np.linalg.norm(scene.d.body("block").xpos - block0) < 0.003
     assert abs(scene.task.slide(scene.d)) < 1e-3
 
@@ -123,14 +120,14 @@ def test_reset_state_has_no_milestone_and_is_at_rest(scene):
 def test_right_fingers_on_handle_is_m1(scene):
     handle = scene.task.handle_pos(scene.d)
     scene.place_gripper("right", handle, DOWN_CLOSE_Y, BAR_GRIP)
-    assert scene.evaluate() == _flags(m1=True)
+    assert scene.evaluate() == milestone_flags(m1=True)
     # Straddling the bar with the fingers half open: no contact yet.
     scene.place_gripper("right", handle, DOWN_CLOSE_Y, 0.017)
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
     # The left gripper on the handle is not M1.
     scene.place_gripper("right", handle + [0.15, -0.05, 0.15], DOWN_CLOSE_Y, OPEN)
     scene.place_gripper("left", handle, DOWN_CLOSE_Y, BAR_GRIP)
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
 
 
 def test_right_fingers_on_block_is_not_m1(scene):
@@ -143,9 +140,9 @@ def test_right_fingers_on_block_is_not_m1(scene):
 
 def test_drawer_opened_beyond_threshold_is_m2(scene):
     scene.set_slide(T.OPEN_SLIDE + 0.01)
-    assert scene.evaluate() == _flags(m2=True)
+    assert scene.evaluate() == milestone_flags(m2=True)
     scene.set_slide(T.OPEN_SLIDE - 0.01)
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
     # The drawer stops at its range: pulled "too far" it stays at the limit.
     scene.set_slide(T.SLIDE_RANGE[1])
     scene.d.qvel[scene.task.slide_dof] = -0.5  # moving outwards
@@ -157,16 +154,16 @@ def test_left_fingers_on_block_is_m3(scene):
     block = scene.d.body("block").xpos.copy()
     scene.place_block(block, 0.0)
     scene.place_gripper("left", block, DOWN_CLOSE_X, BLOCK_GRIP)
-    assert scene.evaluate() == _flags(m3=True)
+    assert scene.evaluate() == milestone_flags(m3=True)
     scene.place_gripper("left", block, DOWN_CLOSE_X, 0.03)  # open around it
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
 
 
 def test_block_resting_in_open_drawer_is_m4(scene):
     scene.set_slide(0.11)
     scene.place_block(scene.block_in_drawer(0.05), 0.3)
     flags = scene.settle(50)
-    assert flags == _flags(m2=True, m4=True), flags
+    assert flags == milestone_flags(m2=True, m4=True), flags
 
 
 def test_block_moving_in_drawer_is_not_m4(scene):
@@ -215,7 +212,7 @@ def test_drawer_closed_with_block_inside_is_m5(scene):
     scene.set_slide(0.0)
     scene.place_block(scene.block_in_drawer(0.07))
     flags = scene.settle(50)
-    assert flags == _flags(m4=True, m5=True), flags
+    assert flags == milestone_flags(m4=True, m5=True), flags
     # Half closed: stowed but not closed.
     scene.set_slide(0.05)
     scene.place_block(scene.block_in_drawer(0.07))
@@ -225,7 +222,7 @@ def test_drawer_closed_with_block_inside_is_m5(scene):
 
 def test_drawer_closed_with_block_outside_is_not_m5(scene):
     scene.set_slide(0.0)
-    assert scene.settle(20) == _flags()
+    assert scene.settle(20) == milestone_flags()
 
 
 def test_drawer_nearly_closed_with_block_still_held_is_not_m5(scene):

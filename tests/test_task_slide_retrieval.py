@@ -18,6 +18,7 @@ from lerobot_bavo.envs.tasks import make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.sim.kinematics import ArmKinematics
+from _helpers import milestone_flags
 
 MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
@@ -140,19 +141,15 @@ def scene(env):
     return Scene(env)
 
 
-def _flags(**true) -> dict[str, bool]:
-    return {f"m{i}": bool(true.get(f"m{i}", False)) for i in range(1, 6)}
-
-
 # --------------------------------------------------------------------------------------------
 # scene and predicates
 # --------------------------------------------------------------------------------------------
 def test_reset_state_is_at_rest_and_no_milestone(scene):
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
     assert scene.task.exposed_length(scene.d) < 0  # the tip starts inside the edge
     p0 = scene.d.body("spatula").xpos.copy()
     flags = scene.settle(500)
-    assert flags == _flags()
+    assert flags == milestone_flags()
     assert np.linalg.norm(scene.d.body("spatula").xpos - p0) < 0.002
     # only the blade rests on the platform's top; the handle hangs free in the groove
     assert scene.spatula_contacts() <= {"platform_side_a", "platform_side_b"}
@@ -173,10 +170,10 @@ def test_right_press_on_blade_is_m1(scene):
     scene.park("left")
     flags = scene.settle(5)
     assert {"right_finger_a_pad", "right_finger_b_pad"} <= scene.spatula_contacts()
-    assert flags == _flags(m1=True), flags
+    assert flags == milestone_flags(m1=True), flags
     # 2 cm above the blade: no contact, no M1
     scene.place_gripper("right", scene.blade_press_point(exposure=-0.02, depth=-0.02), CLOSED)
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
 
 
 def test_right_touching_only_the_platform_is_not_m1(scene):
@@ -193,15 +190,15 @@ def test_exposure_threshold_for_m2(scene):
     scene.park("left")
     scene.place_spatula(exposure=0.05)
     flags = scene.settle(10)
-    assert flags == _flags(m2=True, m3=True), flags  # nothing touches it: also released
+    assert flags == milestone_flags(m2=True, m3=True), flags  # nothing touches it: also released
     scene.place_spatula(exposure=0.03)
-    assert scene.settle(10) == _flags()
+    assert scene.settle(10) == milestone_flags()
 
 
 def test_exposed_but_not_on_the_platform_is_not_m2(scene):
     scene.park("right")
     scene.place_spatula(exposure=0.05, lift=0.10)  # same x, 10 cm up, in free flight
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
 
 
 def test_pressing_after_sliding_is_m2_not_m3(scene):
@@ -209,15 +206,15 @@ def test_pressing_after_sliding_is_m2_not_m3(scene):
     scene.place_spatula(exposure=0.06)
     scene.place_gripper("right", scene.blade_press_point(exposure=0.06), CLOSED)
     flags = scene.settle(5)
-    assert flags == _flags(m1=True, m2=True), flags
+    assert flags == milestone_flags(m1=True, m2=True), flags
     # hovering 5 mm above the blade: no contact, but not clear of it yet
     scene.place_gripper("right", scene.blade_press_point(exposure=0.06, depth=-0.005), CLOSED)
     flags = scene.evaluate()
     assert "right_finger_a_pad" not in scene.spatula_contacts()
-    assert flags == _flags(m2=True), flags
+    assert flags == milestone_flags(m2=True), flags
     # 3 cm above it: released
     scene.place_gripper("right", scene.blade_press_point(exposure=0.06, depth=-0.03), CLOSED)
-    assert scene.evaluate() == _flags(m2=True, m3=True)
+    assert scene.evaluate() == milestone_flags(m2=True, m3=True)
 
 
 def test_left_grasp_of_the_exposed_handle_is_m4(scene):
@@ -226,7 +223,7 @@ def test_left_grasp_of_the_exposed_handle_is_m4(scene):
     scene.place_gripper("left", scene.handle_point(0.03), scene.handle[1] - 0.0005)
     flags = scene.settle(3)
     assert {"left_finger_a_pad", "left_finger_b_pad"} <= scene.spatula_contacts()
-    assert flags == _flags(m2=True, m3=True, m4=True), flags
+    assert flags == milestone_flags(m2=True, m3=True, m4=True), flags
     # fingers open: no contact
     scene.place_gripper("left", scene.handle_point(0.03), OPEN)
     assert not scene.evaluate()["m4"]

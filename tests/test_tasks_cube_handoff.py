@@ -16,6 +16,7 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import TASK_NAMES, make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.sim.kinematics import ArmKinematics
+from _helpers import milestone_flags
 
 MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
@@ -121,15 +122,11 @@ def scene(env):
     return Scene(env)
 
 
-def _flags(**true) -> dict[str, bool]:
-    return {f"m{i}": bool(true.get(f"m{i}", False)) for i in range(1, 6)}
-
-
 # --------------------------------------------------------------------------------------------
 # predicates
 # --------------------------------------------------------------------------------------------
 def test_reset_state_has_no_milestone(scene):
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
     # the reset layout is at rest: a second of physics barely moves the objects
     cube0 = scene.d.body("cube").xpos.copy()
     plate0 = scene.plate_xyz()
@@ -141,12 +138,12 @@ def test_reset_state_has_no_milestone(scene):
 def test_cube_resting_on_table_is_no_milestone(scene):
     scene.place_cube([0.15, 0.0, scene.table_top() + CUBE_HALF])
     flags = scene.settle(50)
-    assert flags == _flags()
+    assert flags == milestone_flags()
 
 
 def test_cube_in_the_air_is_no_milestone(scene):
     scene.place_cube([0.0, 0.0, 0.25])
-    assert scene.evaluate() == _flags()
+    assert scene.evaluate() == milestone_flags()
 
 
 def test_cube_at_rest_on_plate_is_m5(scene):
@@ -198,19 +195,19 @@ def test_right_grasp_on_table_is_m1_not_m2(scene):
     rot = scene.place_gripper("right", centre, DOWN_CLOSE_Y, GRIP)
     scene.place_cube(centre, rot)
     flags = scene.evaluate()
-    assert flags == _flags(m1=True), flags
+    assert flags == milestone_flags(m1=True), flags
 
 
 def test_right_grasp_lifted_is_m1_m2(scene):
     centre = np.array([0.05, 0.04, 0.15])
     rot = scene.place_gripper("right", centre, DOWN_CLOSE_Y, GRIP)
     scene.place_cube(centre, rot)
-    assert scene.evaluate() == _flags(m1=True, m2=True)
+    assert scene.evaluate() == milestone_flags(m1=True, m2=True)
     # Lifted just below the 3 cm clearance: not lifted yet.
     low = np.array([0.05, 0.04, scene.table_top() + CUBE_HALF + 0.02])
     rot = scene.place_gripper("right", low, DOWN_CLOSE_Y, GRIP)
     scene.place_cube(low, rot)
-    assert scene.evaluate() == _flags(m1=True)
+    assert scene.evaluate() == milestone_flags(m1=True)
 
 
 def test_evaluate_returns_python_bools(scene):
@@ -234,7 +231,7 @@ def test_single_finger_touch_is_m1_but_not_a_grasp(scene):
     flags = scene.evaluate()
     names = scene.cube_contacts()
     assert "right_finger_a_pad" in names and "right_finger_b_pad" not in names, names
-    assert flags == _flags(m1=True), flags
+    assert flags == milestone_flags(m1=True), flags
 
 
 def test_both_grippers_hold_lifted_cube_is_m3(scene):
@@ -245,14 +242,14 @@ def test_both_grippers_hold_lifted_cube_is_m3(scene):
     flags = scene.evaluate()
     assert {"left_finger_a_pad", "left_finger_b_pad", "right_finger_a_pad", "right_finger_b_pad"} <= scene.cube_contacts()
     # Right still touches the cube, so the handoff (M4) is not complete.
-    assert flags == _flags(m1=True, m2=True, m3=True), flags
+    assert flags == milestone_flags(m1=True, m2=True, m3=True), flags
 
 
 def test_left_only_hold_lifted_is_m4(scene):
     centre = np.array([-0.03, 0.04, 0.16])
     rot = scene.place_gripper("left", centre, DOWN_CLOSE_X, GRIP)
     scene.place_cube(centre, rot)
-    assert scene.evaluate() == _flags(m4=True)
+    assert scene.evaluate() == milestone_flags(m4=True)
 
 
 def test_left_hold_on_table_is_not_m4(scene):
@@ -356,25 +353,25 @@ def test_task_registry():
 # --------------------------------------------------------------------------------------------
 def test_tracker_requires_order():
     t = MilestoneTracker()
-    assert t.update(_flags(m2=True, m3=True, m5=True), 1) == 0
+    assert t.update(milestone_flags(m2=True, m3=True, m5=True), 1) == 0
     assert t.reached_at == [] and not t.success
-    assert t.update(_flags(m1=True), 2) == 1
-    assert t.update(_flags(m1=True, m3=True), 3) == 1  # m3 without m2
+    assert t.update(milestone_flags(m1=True), 2) == 1
+    assert t.update(milestone_flags(m1=True, m3=True), 3) == 1  # m3 without m2
     assert t.reached_at == [2]
 
 
 def test_tracker_depth_never_decreases():
     t = MilestoneTracker()
-    t.update(_flags(m1=True, m2=True), 0)
-    for step, flags in enumerate([_flags(), _flags(m1=True), _flags(m5=True), _flags()], start=1):
+    t.update(milestone_flags(m1=True, m2=True), 0)
+    for step, flags in enumerate([milestone_flags(), milestone_flags(m1=True), milestone_flags(m5=True), milestone_flags()], start=1):
         assert t.update(flags, step) == 2
     assert t.depth == 2 and t.reached_at == [0, 0]
 
 
 def test_tracker_several_milestones_in_one_update():
     t = MilestoneTracker()
-    assert t.update(_flags(m1=True, m2=True, m3=True), 7) == 3
+    assert t.update(milestone_flags(m1=True, m2=True, m3=True), 7) == 3
     assert t.reached_at == [7, 7, 7]
-    assert t.update(_flags(m4=True, m5=True), 9) == 5
+    assert t.update(milestone_flags(m4=True, m5=True), 9) == 5
     assert t.success and t.reached_at == [7, 7, 7, 9, 9]
-    assert t.update(_flags(), 10) == 5  # stays at success
+    assert t.update(milestone_flags(), 10) == 5  # stays at success

@@ -6,30 +6,14 @@ name; the registry imports the modules that exist (import errors propagate).
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-import inspect
-
 from lerobot_bavo.envs.tasks import TASK_NAMES
 from lerobot_bavo.experts.base import ScriptedExpert
+from lerobot_bavo.registry import discover
 
 
-def _discover() -> dict[str, type[ScriptedExpert]]:
-    found = {}
-    for name in TASK_NAMES:
-        module_name = f"{__name__}.{name}"
-        if importlib.util.find_spec(module_name) is None:
-            continue
-        module = importlib.import_module(module_name)
-        classes = [c for _, c in inspect.getmembers(module, inspect.isclass)
-                   if issubclass(c, ScriptedExpert) and getattr(c, "task_name", None) == name]
-        if len(classes) != 1:
-            raise ImportError(f"{module_name} must define exactly one ScriptedExpert with task_name {name!r}")
-        found[name] = classes[0]
-    return found
-
-
-EXPERTS: dict[str, type[ScriptedExpert]] = _discover()
+EXPERTS: dict[str, type[ScriptedExpert]] = discover(
+    __name__, TASK_NAMES, lambda cls, name: issubclass(cls, ScriptedExpert) and cls.task_name == name
+)
 
 
 def make_expert(env, seed: int | None = None, frozen_camera: bool = False) -> ScriptedExpert:

@@ -7,11 +7,8 @@ module propagate (they are bugs, not missing tasks).
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-import inspect
-
 from lerobot_bavo.envs.tasks.base import Task
+from lerobot_bavo.registry import discover
 
 # The five BAVO-Bench tasks in the paper's order; gym ids are `lerobot_bavo/<GymName>-v0`.
 TASK_NAMES = ("cube_handoff", "block_stacking", "drawer_stowing", "slide_retrieval", "dustpan_sweeping")
@@ -24,23 +21,10 @@ GYM_NAMES = {
 }
 
 
-def _discover() -> dict[str, type[Task]]:
-    found = {}
-    for name in TASK_NAMES:
-        module_name = f"{__name__}.{name}"
-        if importlib.util.find_spec(module_name) is None:
-            continue
-        module = importlib.import_module(module_name)
-        classes = [c for _, c in inspect.getmembers(module, inspect.isclass)
-                   if issubclass(c, Task) and c is not Task and c.name == name]
-        if len(classes) != 1:
-            raise ImportError(f"{module_name} must define exactly one Task subclass named {name!r}")
-        found[name] = classes[0]
-    return found
-
-
 # Tasks implemented in this version, in the paper's order.
-TASKS: dict[str, type[Task]] = _discover()
+TASKS: dict[str, type[Task]] = discover(
+    __name__, TASK_NAMES, lambda cls, name: issubclass(cls, Task) and cls.name == name
+)
 
 
 def make_task(name: str) -> Task:
