@@ -1,0 +1,143 @@
+"""Collection throughput (episodes/min) and storage (bytes per frame) of `bavo-collect`.
+
+Runs a small real collection (default: 6 Stage episodes of Cube Handoff, 2 workers, the default
+240 x 320 image and 256 points) into a temporary folder and prints:
+- wall time, episodes/min overall and in steady state (between the first and the last commit, so
+  without the one-off start-up: process spawn, imports, first renderer), and the 100-episode time
+  extrapolated as start-up + 100 / steady rate (an extrapolation, not a measurement);
+- per-episode costs: simulation + expert + segmentation render in a worker, teacher targets,
+  staging, and the main process's LeRobot write (parquet, stats, AV1 video encode), in wall time
+  and in CPU time; the CPU time gives a contention-free estimate (other processes on a shared
+  machine inflate the wall times);
+- bytes per frame on disk with and without the video, and per parquet column.
+
+    python benchmarks/collect_throughput.py [--episodes 6] [--workers 2] [--task cube_handoff] [--keep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("SVT_LOG", "1")
+
+
+def folder_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.exists() else 0
+
+
+def column_bytes(root: Path) -> dict[str, int]:
+    """Compressed bytes per parquet column over all data files."""
+    import pyarrow.parquet as pq
+
+    out: dict[str, int] = {}
+    for p in sorted((root / "data").glob("*/*.parquet")):
+        md = pq.ParquetFile(p).metadata
+        for rg in range(md.num_row_groups):
+            for c in range(md.num_columns):
+                col = md.row_group(rg).column(c)
+                name = col.path_in_schema.split(".list.")[0].replace(".list.element", "")
+                out[name] = out.get(name, 0) + col.total_compressed_size
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--task", default="cube_handoff")
+    ap.add_argument("--condition", default="stage")
+    ap.add_argument("--episodes", type=int, default=6)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--commit-every", type=int, default=2)
+    ap.add_argument("--root", type=Path, default=None, help="dataset folder (default: a temporary one, removed)")
+    ap.add_argument("--keep", action="store_true", help="keep the temporary dataset")
+    args = ap.parse_args()
+
+    import datasets
+
+    datasets.disable_progress_bars()
+    import lerobot_bavo.datasets.collect as C
+    from lerobot_bavo.datasets.schema import DatasetSettings
+
+    tmp = None
+    root = args.root
+    if root is None:
+        tmp = Path(tempfile.mkdtemp(prefix="bavo_bench_"))
+        root = tmp / "ds"
+    commits: list[dict] = []
+    real_commit = C.Collector._commit
+
+    def timed_commit(self, batch, discards, next_seed):
+        t0, c0 = time.perf_counter(), time.process_time()  # process time includes the encoder threads
+        real_commit(self, batch, discards, next_seed)
+        commits.append({"t": time.perf_counter(), "seconds": time.perf_counter() - t0,
+                        "cpu": time.process_time() - c0, "episodes": list(batch)})
+
+    C.Collector._commit = timed_commit
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    summary = C.collect(C.CollectConfig(task=args.task, condition=args.condition, episodes=args.episodes,
+                                        repo_id="bench/bavo_throughput", root=root, workers=args.workers,
+                                        commit_every=args.commit_every, settings=DatasetSettings(), progress=False))
+    wall = time.perf_counter() - t0
+    load1 = os.getloadavg()
+
+    eps = [e for c in commits for e in c["episodes"]]
+    frames = summary["frames"]
+    startup = commits[0]["t"] - t0 if commits else float("nan")
+    n_after = sum(len(c["episodes"]) for c in commits[1:])
+    steady = 60.0 * n_after / (commits[-1]["t"] - commits[0]["t"]) if len(commits) > 1 else float("nan")
+    first_batch = len(commits[0]["episodes"]) if commits else 0
+    # start-up + first batch at the steady rate already counted: extrapolate from the first commit on
+    extrap_100 = (commits[0]["t"] - t0) + (100 - first_batch) * 60.0 / steady if steady == steady else float("nan")
+
+    worker_cpu = sum(e.get("cpu_s", 0.0) for e in eps) / max(1, len(eps))
+    write_cpu = sum(c["cpu"] for c in commits) / max(1, len(eps))
+    cpu_per_ep = worker_cpu + write_cpu
+    ideal_rate = 60.0 * min(args.workers, os.cpu_count() or 1) / cpu_per_ep  # all cores busy, no contention
+    video = folder_bytes(root / "videos")
+    data = folder_bytes(root / "data")
+    meta = folder_bytes(root / "meta")
+    cols = column_bytes(root)
+
+    mean = lambda k: sum(e.get(k, 0.0) for e in eps) / max(1, len(eps))  # noqa: E731
+    write_per_ep = sum(c["seconds"] for c in commits) / max(1, len(eps))
+    print(f"\n== {args.episodes} x {args.task} / {args.condition}, {args.workers} workers, 240x320, 256 points ==")
+    print(f"load average before / after: {load0[0]:.1f} / {load1[0]:.1f} (2 cores)")
+    print(f"kept {summary['episodes']} episodes ({frames} frames, {frames / max(1, summary['episodes']):.0f} per episode), "
+          f"discarded {summary['discarded']}")
+    print(f"wall {wall:.1f} s -> {60 * summary['episodes'] / wall:.2f} episodes/min overall; "
+          f"start-up until the first commit {startup:.1f} s")
+    print(f"steady state (first -> last commit): {steady:.2f} episodes/min")
+    print(f"EXTRAPOLATED 100 episodes: {extrap_100 / 60:.1f} min (target < 15 min)")
+    print(f"per episode: worker {mean('episode_s'):.1f} s (sim + expert + renders), teacher {mean('teacher_s'):.2f} s, "
+          f"staging {mean('stage_s'):.2f} s; main-process LeRobot write (parquet + stats + AV1 encode) {write_per_ep:.1f} s")
+    print(f"CPU per episode: worker {worker_cpu:.1f} s + main-process write {write_cpu:.1f} s = {cpu_per_ep:.1f} s "
+          f"-> on {min(args.workers, os.cpu_count() or 1)} otherwise idle cores at most {ideal_rate:.2f} episodes/min, "
+          f"100 episodes in ~{100 / ideal_rate:.1f} min + start-up (CPU-bound estimate)")
+    print(f"bytes/frame: without video {(data + meta) / frames / 1024:.1f} KB (data {data / frames / 1024:.1f} KB, "
+          f"meta {meta / frames / 1024:.2f} KB); video {video / frames / 1024:.2f} KB; total "
+          f"{(data + meta + video) / frames / 1024:.1f} KB (target <= 40 KB without video)")
+    print("parquet bytes/frame per column:")
+    for k, v in sorted(cols.items(), key=lambda kv: -kv[1]):
+        print(f"  {k:<34} {v / frames:8.0f} B")
+    print(json.dumps({"wall_s": round(wall, 1), "startup_s": round(startup, 1), "episodes_per_min_overall":
+                      round(60 * summary["episodes"] / wall, 2), "episodes_per_min_steady": round(steady, 2),
+                      "extrapolated_100_min": round(extrap_100 / 60, 1), "kb_per_frame_without_video":
+                      round((data + meta) / frames / 1024, 2), "kb_per_frame_video": round(video / frames / 1024, 2),
+                      "worker_s_per_episode": round(mean("episode_s"), 2), "write_s_per_episode": round(write_per_ep, 2),
+                      "cpu_s_per_episode": round(cpu_per_ep, 2), "cpu_bound_100_min": round(100 / ideal_rate, 1)}))
+    if tmp is not None and not args.keep:
+        shutil.rmtree(tmp)
+    elif tmp is not None:
+        print(f"dataset kept at {root}")
+
+
+if __name__ == "__main__":
+    main()

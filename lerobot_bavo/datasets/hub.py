@@ -1,0 +1,181 @@
+"""Loading (with schema and file checks), statistics fix-up and Hub upload of BAVO datasets.
+
+Everything goes through LeRobot's own API: `LeRobotDataset(repo_id, root=...)` to load (offline
+with a local `root`), `LeRobotDataset.push_to_hub` to upload (it creates the `v3.0` tag that
+loading by repo id needs). A real push needs a Hugging Face token: run `huggingface-cli login`
+(or set `HF_TOKEN`) first.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from lerobot_bavo.datasets import schema as S
+
+logger = logging.getLogger(__name__)
+
+SIDECAR = Path("meta") / "bavo_collection.json"
+CODEBASE_VERSION = "v3.0"
+# Files pushed to the Hub (LeRobot's own ignore list only drops `images/`; our staging area and
+# LeRobot's temporary encoder folders must not be uploaded).
+PUSH_PATTERNS = ["data/*", "meta/*", "videos/*", "README.md"]
+
+
+def read_info(root: str | Path) -> dict:
+    """`meta/info.json` of a local dataset, with clear errors for a missing or corrupted file."""
+    path = Path(root) / "meta" / "info.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"no LeRobot dataset at {root}: {path} does not exist")
+    try:
+        info = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"corrupted dataset metadata {path}: not valid JSON ({e})") from e
+    if not isinstance(info, dict) or "features" not in info:
+        raise ValueError(f"corrupted dataset metadata {path}: no 'features' entry")
+    version = info.get("codebase_version")
+    if version != CODEBASE_VERSION:
+        raise ValueError(f"{path}: dataset format {version!r}, expected LeRobot {CODEBASE_VERSION!r}")
+    return info
+
+
+def check_files(root: str | Path, info: dict | None = None, check_videos: bool = True) -> None:
+    """Open every data / episode-metadata parquet footer (and video container) of a local dataset.
+
+    Raises ValueError naming the first unreadable file, or when the frame / episode counts in the
+    files disagree with `meta/info.json` (e.g. a collection killed while writing).
+    """
+    import pyarrow.parquet as pq
+
+    root = Path(root)
+    info = info if info is not None else read_info(root)
+
+    def rows(paths: list[Path], what: str) -> int:
+        total = 0
+        for p in paths:
+            try:
+                total += pq.ParquetFile(p).metadata.num_rows
+            except Exception as e:  # pyarrow raises ArrowInvalid / OSError for truncated files
+                raise ValueError(f"corrupted {what} file {p}: {type(e).__name__}: {e}") from e
+        return total
+
+    data_files = sorted((root / "data").glob("*/*.parquet"))
+    episode_files = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+    n_frames = rows(data_files, "data")
+    n_episodes = rows(episode_files, "episode metadata")
+    if n_frames != info.get("total_frames") or n_episodes != info.get("total_episodes"):
+        raise ValueError(
+            f"dataset at {root} is inconsistent: meta/info.json declares {info.get('total_episodes')} episodes / "
+            f"{info.get('total_frames')} frames, the files hold {n_episodes} / {n_frames} "
+            "(an interrupted write? `bavo-collect` with the same arguments repairs its own datasets)"
+        )
+    if check_videos:
+        import av
+
+        for p in sorted((root / "videos").glob("*/*/*.mp4")):
+            try:
+                with av.open(str(p)) as container:
+                    if not container.streams.video:
+                        raise ValueError("no video stream")
+            except Exception as e:
+                raise ValueError(f"corrupted video file {p}: {type(e).__name__}: {e}") from e
+
+
+def load_bavo_dataset(repo_id: str, root: str | Path | None = None, n_points: int | None = None,
+                      require_teacher: bool = True, check_videos: bool = True, **kwargs):
+    """`LeRobotDataset(repo_id, root, **kwargs)` after validating the BAVO schema and the files.
+
+    With a local `root` (or an existing `$HF_LEROBOT_HOME/<repo_id>`), the metadata, the schema
+    (required keys and shapes for `n_points`, the teacher cache) and every file are checked
+    first, so a corrupted or mismatched dataset gives a ValueError naming the feature or file.
+    Without a local copy the dataset is loaded (downloaded) by LeRobot and then checked.
+    `video_backend` defaults to "pyav" (torchcodec needs a system FFmpeg).
+
+    Raises:
+        FileNotFoundError: no dataset at `root`.
+        ValueError: schema mismatch (missing feature, wrong shape/dtype, missing teacher cache)
+            or a corrupted / inconsistent file.
+    """
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.utils.constants import HF_LEROBOT_HOME
+
+    kwargs.setdefault("video_backend", "pyav")
+    local = Path(root) if root is not None else HF_LEROBOT_HOME / repo_id
+    if root is not None or (local / "meta" / "info.json").exists():
+        info = read_info(local)
+        S.check_features(info["features"], n_points=n_points, require_teacher=require_teacher)
+        check_files(local, info, check_videos=check_videos)
+    try:
+        ds = LeRobotDataset(repo_id, root=root, **kwargs)
+    except (FileNotFoundError, ValueError):
+        raise
+    except Exception as e:
+        raise ValueError(f"LeRobot could not load dataset {repo_id!r} from {local}: {type(e).__name__}: {e}") from e
+    S.check_features(ds.meta.features, n_points=n_points, require_teacher=require_teacher)
+    return ds
+
+
+def read_sidecar(root: str | Path) -> dict | None:
+    path = Path(root) / SIDECAR
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"corrupted collection record {path}: {e}") from e
+
+
+# ------------------------------------------------------------------ statistics
+def retile_point_cloud_stats(root: str | Path) -> dict:
+    """Replace the per-element stats of `observation.point_cloud` in `meta/stats.json` by exact
+    per-channel stats (over all frames and points) tiled to the flat (N * 6,) layout.
+
+    LeRobot computes statistics per element of a flat feature; for farthest-point-sampled points
+    the slot index is arbitrary, so per-element min/max would normalise each slot differently.
+    Tiled per-channel stats make LeRobot's element-wise normaliser equal to ManiFlow's per-channel
+    `limits` normalisation. Run it again after LeRobot's `delete_episodes` / `merge_datasets`,
+    which re-aggregate per-element episode stats. Returns the per-channel (6,) stats.
+    """
+    import pyarrow.parquet as pq
+
+    root = Path(root)
+    info = read_info(root)
+    n = S.infer_n_points(info["features"])
+    chunks = []
+    for p in sorted((root / "data").glob("*/*.parquet")):
+        col = pq.read_table(p, columns=[S.OBS_POINT_CLOUD]).column(0)
+        flat = np.asarray(col.combine_chunks().flatten().to_numpy(zero_copy_only=False), dtype=np.float32)
+        chunks.append(flat.reshape(-1, S.POINT_CHANNELS))
+    if not chunks:
+        raise ValueError(f"dataset at {root} has no data files")
+    per_channel = S.channel_stats(np.concatenate(chunks))
+    stats_path = root / "meta" / "stats.json"
+    stats = json.loads(stats_path.read_text()) if stats_path.exists() else {}
+    tiled = S.tile_channel_stats(per_channel, n)
+    stats[S.OBS_POINT_CLOUD] = {k: np.asarray(v).tolist() for k, v in tiled.items()}
+    tmp = stats_path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(stats, indent=4))
+    tmp.replace(stats_path)
+    return per_channel
+
+
+# ------------------------------------------------------------------ Hub
+def push_dataset(root: str | Path, repo_id: str, private: bool | None = None, push_videos: bool = True,
+                 card_kwargs: dict | None = None) -> None:
+    """Upload a finished local BAVO dataset with LeRobot's `push_to_hub` (creates the v3.0 tag).
+
+    The dataset card pushed is LeRobot's template filled with our description (the same text as
+    the local README.md). Needs `huggingface-cli login` (or `HF_TOKEN`) for a real push.
+    """
+    from lerobot_bavo.datasets.card import card_kwargs_for
+
+    root = Path(root)
+    sidecar = read_sidecar(root)
+    if sidecar is not None and sidecar.get("pending_commit"):
+        raise ValueError(f"{root} has an unfinished commit: re-run `bavo-collect` with the same arguments first")
+    ds = load_bavo_dataset(repo_id, root=root)
+    kwargs = card_kwargs_for(root, repo_id) if card_kwargs is None else card_kwargs
+    ds.push_to_hub(private=private, push_videos=push_videos, allow_patterns=PUSH_PATTERNS, **kwargs)

@@ -1,0 +1,200 @@
+"""Record one scripted-expert episode with everything the dataset and the simulator teacher need.
+
+Frame t of an episode pairs observation o_t with the action a_t the expert sends after seeing it
+(LeRobot's convention); the observation after the last action is not stored. Episode length
+T = number of actions. Besides the dataset's arrays, the recorder keeps privileged per-frame
+state for the teacher (never stored in the dataset): the z-depth and the id of the body seen at
+every pixel (one segmentation render at the observation resolution, from the state the
+observation was rendered in: after the step's occluder placement), and the poses of all bodies.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.envs.occlusion import stage_index
+from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
+from lerobot_bavo.sim import constants as C
+
+
+@dataclass
+class EpisodeRecord:
+    """One recorded episode (T frames). Arrays have the frame as leading axis.
+
+    Dataset arrays: state, action (T, 21) float32; rgb (T, H, W, 3) uint8; point_cloud (T, N, 6)
+    float32; point_pixels (T, N, 2) int32; camera_pose (T, 4, 4) float64 (T_B<-C, OpenCV axes);
+    progress, occlusion_event, occlusion_target (T,) int64; event_start, occlusion_active,
+    visibility (T,) float32 (see `schema` for their meaning).
+    Privileged (teacher only): depth (T, H, W) float32 z-depth (m); body_seg (T, H, W) int16
+    body id per pixel (-1: none); body_xpos (T, n_body, 3), body_xmat (T, n_body, 3, 3) float64;
+    K (3, 3) intrinsics.
+    """
+
+    task: str
+    condition: str
+    seed: int
+    success: bool
+    final_progress: int
+    state: np.ndarray
+    action: np.ndarray
+    rgb: np.ndarray
+    point_cloud: np.ndarray
+    point_pixels: np.ndarray
+    camera_pose: np.ndarray
+    progress: np.ndarray
+    occlusion_event: np.ndarray
+    event_start: np.ndarray
+    occlusion_active: np.ndarray
+    occlusion_target: np.ndarray
+    visibility: np.ndarray
+    depth: np.ndarray
+    body_seg: np.ndarray
+    body_xpos: np.ndarray
+    body_xmat: np.ndarray
+    K: np.ndarray
+    timings: dict = field(default_factory=dict)
+    recoveries: int = 0
+
+    @property
+    def length(self) -> int:
+        return int(self.action.shape[0])
+
+
+class EpisodeRecorder:
+    """Owns an env, its expert and a segmentation renderer; records seeded episodes.
+
+    Args:
+        task, condition: the benchmark task and visibility condition.
+        settings: observation settings (`schema.DatasetSettings`).
+        episode_length: control-step limit (None: the task's own); truncated episodes fail.
+    """
+
+    def __init__(self, task: str, condition: str, settings: S.DatasetSettings, episode_length: int | None = None):
+        from lerobot_bavo.envs.bavo_env import BavoEnv
+        from lerobot_bavo.sim.rendering import SceneRenderer
+
+        self.task, self.condition, self.settings = task, condition, settings
+        self.env = BavoEnv(
+            task=task, condition=condition, image_height=settings.image_height, image_width=settings.image_width,
+            n_points=settings.n_points, point_frame=settings.point_frame, fovy=settings.fovy,
+            episode_length=episode_length, render_mode=None,
+        )
+        model = self.env.model
+        self._camera_id = model.camera(C.ACTIVE_CAMERA).id
+        self._seg = SceneRenderer(model, settings.image_height, settings.image_width)
+        # geom id -> body id lookup with -1 (nothing seen) mapped to -1
+        self._geom_body = np.append(model.geom_bodyid.astype(np.int16), np.int16(-1))
+        self.K = intrinsics_from_fovy(settings.fovy, settings.image_height, settings.image_width)
+
+    def close(self) -> None:
+        self._seg.close()
+        self.env.close()
+
+    def record(self, seed: int) -> EpisodeRecord:
+        from lerobot_bavo.experts import make_expert
+
+        env = self.env
+        t0 = time.perf_counter()
+        obs, info = env.reset(seed=seed)
+        expert = make_expert(env, seed=seed)
+        expert.reset()
+        task = env.task
+        rows: dict[str, list] = {k: [] for k in (
+            "state", "action", "rgb", "point_cloud", "point_pixels", "camera_pose", "progress", "occlusion_event",
+            "event_start", "occlusion_active", "occlusion_target", "visibility", "depth", "body_seg", "body_xpos",
+            "body_xmat")}
+        target_stage = -1
+        t_render = 0.0
+        while True:
+            # o_t (and privileged state in the same simulator state it was rendered in)
+            ts = time.perf_counter()
+            seg, depth = self._seg.render_segmentation(env.data, self._camera_id, with_depth=True)
+            t_render += time.perf_counter() - ts
+            rows["depth"].append(depth)
+            rows["body_seg"].append(self._geom_body[seg])
+            rows["body_xpos"].append(env.data.xpos.copy())
+            rows["body_xmat"].append(env.data.xmat.reshape(-1, 3, 3).copy())
+            rows["state"].append(obs["agent_pos"])
+            rows["rgb"].append(obs["pixels"]["active"])
+            rows["point_cloud"].append(obs["point_cloud"])
+            rows["point_pixels"].append(obs["point_pixels"])
+            rows["camera_pose"].append(np.asarray(info["camera_pose"], dtype=np.float64))
+            rows["progress"].append(int(info["progress"]))
+            occ = info.get("occlusion")
+            if occ is None:
+                rows["occlusion_event"].append(-1)
+                rows["event_start"].append(0.0)
+                rows["occlusion_target"].append(-1)
+                rows["visibility"].append(-1.0)
+            else:
+                if occ["event_started"]:
+                    target_stage = _target_stage(task, occ["target"], int(info["progress"]))
+                rows["occlusion_event"].append(int(occ["event"]["index"]))
+                rows["event_start"].append(float(bool(occ["event_started"])))
+                rows["occlusion_target"].append(target_stage)
+                vis = occ["visibility"]
+                rows["visibility"].append(-1.0 if vis is None else float(vis))
+            # a_t
+            action = np.asarray(expert.act(obs, info), dtype=np.float32)
+            rows["action"].append(action)
+            rows["occlusion_active"].append(float(expert.phase == "recover_view"))
+            obs, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        arrays = {k: np.stack(v) for k, v in rows.items()}
+        wall = time.perf_counter() - t0
+        return EpisodeRecord(
+            task=self.task, condition=self.condition, seed=int(seed), success=bool(info["is_success"]),
+            final_progress=int(info["progress"]),
+            state=arrays["state"].astype(np.float32), action=arrays["action"].astype(np.float32),
+            rgb=arrays["rgb"], point_cloud=arrays["point_cloud"].astype(np.float32),
+            point_pixels=arrays["point_pixels"].astype(np.int32), camera_pose=arrays["camera_pose"],
+            progress=arrays["progress"].astype(np.int64), occlusion_event=arrays["occlusion_event"].astype(np.int64),
+            event_start=arrays["event_start"].astype(np.float32),
+            occlusion_active=arrays["occlusion_active"].astype(np.float32),
+            occlusion_target=arrays["occlusion_target"].astype(np.int64),
+            visibility=arrays["visibility"].astype(np.float32),
+            depth=arrays["depth"], body_seg=arrays["body_seg"], body_xpos=arrays["body_xpos"],
+            body_xmat=arrays["body_xmat"], K=self.K.copy(),
+            timings={"episode_s": wall, "segmentation_s": t_render},
+            recoveries=len(getattr(expert, "recoveries", [])),
+        )
+
+
+def _target_stage(task, target: str, progress: int) -> int:
+    """Stage index s of an event's target (`task.stage_targets[s] == target`), from the milestone
+    depth at the event start (the env picks the target by the stage reached at that time)."""
+    s = stage_index(progress, task.stage_transitions)
+    if task.stage_targets[s] == target:
+        return s
+    return task.stage_targets.index(target)  # first match (an event not aligned with the stages)
+
+
+def episode_frames(record: EpisodeRecord, targets: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The dataset columns of an episode (flat layouts, exact dtypes), frame as leading axis."""
+    T = record.length
+    n = record.point_cloud.shape[1]
+    col = {
+        S.OBS_STATE: record.state.astype(np.float32),
+        S.ACTION: record.action.astype(np.float32),
+        S.OBS_IMAGE: record.rgb,
+        S.OBS_POINT_CLOUD: record.point_cloud.reshape(T, n * S.POINT_CHANNELS).astype(np.float32),
+        S.OBS_POINT_PIXELS: record.point_pixels.reshape(T, n * S.PIXEL_CHANNELS).astype(np.float32),
+        S.OBS_CAMERA_POSE: record.camera_pose.reshape(T, 16).astype(np.float32),
+        S.TEACHER_Z0: targets["z0"].reshape(T, -1).astype(np.float32),
+        S.TEACHER_ZF: targets["zf"].reshape(T, -1).astype(np.float32),
+        S.TEACHER_VISIBLE: targets["visible"].reshape(T, n).astype(np.float32),
+        S.TEACHER_VALID: targets["valid"].reshape(T, 1).astype(np.float32),
+        S.ANN_PROGRESS: record.progress.reshape(T, 1).astype(np.int64),
+        S.ANN_EVENT: record.occlusion_event.reshape(T, 1).astype(np.int64),
+        S.ANN_EVENT_START: record.event_start.reshape(T, 1).astype(np.float32),
+        S.ANN_ACTIVE: record.occlusion_active.reshape(T, 1).astype(np.float32),
+        S.ANN_TARGET: record.occlusion_target.reshape(T, 1).astype(np.int64),
+        S.ANN_VISIBILITY: record.visibility.reshape(T, 1).astype(np.float32),
+        S.ANN_SEED: np.full((T, 1), record.seed, dtype=np.int64),
+    }
+    return col

@@ -1,0 +1,284 @@
+"""The one feature schema of BAVO-Bench datasets (LeRobot v3.0), and helpers to reshape it back.
+
+Every array feature is stored **flat** (1-D): LeRobot 0.6.1's `delete_episodes` / `merge_datasets`
+fail on 2-D features (FACTS.md, Sec. 4), so (N, C) arrays are stored row-major as (N * C,).
+`unflatten_points` / `unflatten_point_cloud` / ... give them back as (..., N, C); they accept
+both the flat layout (dataset, (..., N * C)) and the unflattened one (env, (..., N, C)).
+
+Features (N = points per cloud, H x W = active image size; all per frame, 25 fps):
+
+| key | shape | dtype | meaning |
+|---|---|---|---|
+| observation.state | (21,) | float32 | joint state: left 6 + gripper, right 6 + gripper, camera arm 7 (rad; grippers 0 closed .. 1 open) |
+| action | (21,) | float32 | absolute joint targets, same order, sent after observing this frame |
+| observation.images.active | (H, W, 3) | video | active-camera RGB |
+| observation.point_cloud | (N*6,) | float32 | (N, 6) row-major: xyz (m, base frame unless `point_frame="camera"`) + rgb in [0, 1] |
+| observation.point_pixels | (N*2,) | float32 | (N, 2) row-major: source pixel (u = column, v = row) of each point; -1 if the view was empty |
+| observation.camera_pose | (16,) | float32 | T_B<-C (4, 4) row-major, OpenCV camera axes (x right, y down, z forward) |
+| observation.teacher.z0 | (N*3,) | float32 | (N, 3): teacher answer to q0 = (u, v, t, t, t) (see `lerobot_bavo.teacher`) |
+| observation.teacher.zf | (N*3,) | float32 | (N, 3): teacher answer to qF = (u, v, t, t+15, t+15) |
+| observation.teacher.visible | (N,) | float32 | 1 if the queried point is the first surface seen along its ray at t+15, else 0 |
+| observation.teacher.valid | (1,) | float32 | 1 if frame t+15 exists in the episode; 0 where it was clamped to the last frame |
+| annotation.progress | (1,) | int64 | milestone depth d in 0..5 reached at this frame |
+| annotation.occlusion_event | (1,) | int64 | index of the current occlusion event (0, 1, 2 under Stage), -1 if none |
+| annotation.event_start | (1,) | float32 | 1 at the frame where an occlusion event starts (the occluder was just placed) |
+| annotation.occlusion_active | (1,) | float32 | 1 while the demonstrator is recovering the view after an event (its action at this frame is a recovery move) |
+| annotation.occlusion_target | (1,) | int64 | stage index s of the event's target, i.e. the target is `task.stage_targets[s]`; -1 if none |
+| annotation.visibility | (1,) | float32 | visibility ratio V of the current target in [0, 1] (privileged render); -1 under Clean |
+| annotation.episode_seed | (1,) | int64 | the env / expert seed of the episode |
+
+`annotation.*` columns are kept in the dataset but never reach a policy: LeRobot's
+`dataset_to_policy_features` types only `observation.*` and `action*` keys, and
+`batch_to_transition` drops other keys before `forward`. `observation.teacher.*` keys do reach
+`forward` (training targets); the policies remove them from `input_features`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from lerobot_bavo.sim import constants as C
+
+FPS = C.CONTROL_HZ  # 25
+
+# ------------------------------------------------------------------ keys
+OBS_STATE = "observation.state"
+ACTION = "action"
+OBS_IMAGE = "observation.images.active"
+OBS_POINT_CLOUD = "observation.point_cloud"
+OBS_POINT_PIXELS = "observation.point_pixels"
+OBS_CAMERA_POSE = "observation.camera_pose"
+TEACHER_PREFIX = "observation.teacher"
+TEACHER_Z0 = f"{TEACHER_PREFIX}.z0"
+TEACHER_ZF = f"{TEACHER_PREFIX}.zf"
+TEACHER_VISIBLE = f"{TEACHER_PREFIX}.visible"
+TEACHER_VALID = f"{TEACHER_PREFIX}.valid"
+ANNOTATION_PREFIX = "annotation"
+ANN_PROGRESS = f"{ANNOTATION_PREFIX}.progress"
+ANN_EVENT = f"{ANNOTATION_PREFIX}.occlusion_event"
+ANN_EVENT_START = f"{ANNOTATION_PREFIX}.event_start"
+ANN_ACTIVE = f"{ANNOTATION_PREFIX}.occlusion_active"
+ANN_TARGET = f"{ANNOTATION_PREFIX}.occlusion_target"
+ANN_VISIBILITY = f"{ANNOTATION_PREFIX}.visibility"
+ANN_SEED = f"{ANNOTATION_PREFIX}.episode_seed"
+
+POINT_CHANNELS = 6  # xyz + rgb
+PIXEL_CHANNELS = 2  # u, v
+TEACHER_CHANNELS = 3  # xyz in the camera frame of t_cam (SimulatorTeacher)
+
+# Teacher configuration (paper, Appendix B): 32-frame clips, anchor 16, future 31 (Delta t = 15).
+CLIP_LENGTH = 32
+ANCHOR_INDEX = 16
+N_FUTURE = 15
+
+TEACHER_KEYS = (TEACHER_Z0, TEACHER_ZF, TEACHER_VISIBLE, TEACHER_VALID)
+ANNOTATION_KEYS = (ANN_PROGRESS, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET, ANN_VISIBILITY, ANN_SEED)
+
+
+def joint_names() -> list[str]:
+    """The 21 state / action entry names, in order."""
+    man = [*C.MANIPULATOR_JOINTS, "gripper"]
+    return [f"left_{j}" for j in man] + [f"right_{j}" for j in man] + [f"cam_{j}" for j in C.CAMERA_ARM_JOINTS]
+
+
+@dataclass(frozen=True)
+class DatasetSettings:
+    """What fixes a dataset's schema: the env's observation settings.
+
+    Args:
+        image_height, image_width: active image size (pixels).
+        n_points: points per cloud N (= teacher queries N_q).
+        point_frame: "base" or "camera" (frame of the point-cloud xyz).
+        fovy: active camera vertical field of view (degrees), for the intrinsics.
+    """
+
+    image_height: int = 240
+    image_width: int = 320
+    n_points: int = 256
+    point_frame: str = "base"
+    fovy: float = C.ACTIVE_CAMERA_FOVY
+
+    def __post_init__(self):
+        if self.image_height < 16 or self.image_width < 16:
+            raise ValueError(f"image size must be >= 16 x 16, got {self.image_height} x {self.image_width}")
+        if self.n_points < 2:
+            raise ValueError(f"n_points must be >= 2 (relations need pairs), got {self.n_points}")
+        if self.point_frame not in ("base", "camera"):
+            raise ValueError(f"point_frame must be 'base' or 'camera', got {self.point_frame!r}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def build_features(settings: DatasetSettings, use_videos: bool = True) -> dict[str, dict]:
+    """LeRobot feature dict (for `LeRobotDataset.create`) of a BAVO dataset with these settings."""
+    n = settings.n_points
+    names = joint_names()
+
+    def vec(dim: int, dtype: str = "float32", names_=None) -> dict:
+        return {"dtype": dtype, "shape": (dim,), "names": names_}
+
+    features = {
+        OBS_STATE: vec(C.ACTION_DIM, names_=names),
+        ACTION: vec(C.ACTION_DIM, names_=list(names)),
+        OBS_IMAGE: {
+            "dtype": "video" if use_videos else "image",
+            "shape": (settings.image_height, settings.image_width, 3),
+            "names": ["height", "width", "channels"],
+        },
+        OBS_POINT_CLOUD: vec(n * POINT_CHANNELS),
+        OBS_POINT_PIXELS: vec(n * PIXEL_CHANNELS),
+        OBS_CAMERA_POSE: vec(16),
+        TEACHER_Z0: vec(n * TEACHER_CHANNELS),
+        TEACHER_ZF: vec(n * TEACHER_CHANNELS),
+        TEACHER_VISIBLE: vec(n),
+        TEACHER_VALID: vec(1),
+        ANN_PROGRESS: vec(1, "int64"),
+        ANN_EVENT: vec(1, "int64"),
+        ANN_EVENT_START: vec(1),
+        ANN_ACTIVE: vec(1),
+        ANN_TARGET: vec(1, "int64"),
+        ANN_VISIBILITY: vec(1),
+        ANN_SEED: vec(1, "int64"),
+    }
+    return features
+
+
+def expected_shapes(n_points: int, image_hw: tuple[int, int] | None = None) -> dict[str, tuple[tuple[int, ...], str]]:
+    """(shape, dtype) of every BAVO feature for `n_points` (the image entry only if `image_hw`)."""
+    settings = DatasetSettings(*(image_hw or (240, 320)), n_points=n_points)
+    out = {k: (tuple(ft["shape"]), ft["dtype"]) for k, ft in build_features(settings).items()}
+    if image_hw is None:
+        out.pop(OBS_IMAGE)
+    return out
+
+
+def infer_n_points(features: Mapping[str, Mapping]) -> int:
+    """N from a dataset's features (`observation.point_cloud` is (N * 6,)); ValueError if not."""
+    if OBS_POINT_CLOUD not in features:
+        raise ValueError(f"missing feature {OBS_POINT_CLOUD!r}: not a BAVO dataset")
+    shape = tuple(features[OBS_POINT_CLOUD]["shape"])
+    if len(shape) != 1 or shape[0] % POINT_CHANNELS:
+        raise ValueError(
+            f"feature {OBS_POINT_CLOUD!r} has shape {shape}; expected the flat layout (N * {POINT_CHANNELS},)"
+        )
+    return shape[0] // POINT_CHANNELS
+
+
+def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
+                   require_teacher: bool = True, require_annotations: bool = True) -> int:
+    """Validate a feature dict against the BAVO schema; return N. Raises ValueError naming the problem.
+
+    Args:
+        features: a dataset's `meta.features` (or `info.json`'s "features").
+        n_points: expected N; None infers it from `observation.point_cloud`.
+        require_teacher: the teacher cache (`observation.teacher.*`) must be present.
+        require_annotations: the `annotation.*` columns must be present.
+    """
+    found = infer_n_points(features)
+    if n_points is not None and found != n_points:
+        raise ValueError(
+            f"dataset has {found} points per cloud ({OBS_POINT_CLOUD} shape ({found * POINT_CHANNELS},)) "
+            f"but {n_points} were requested"
+        )
+    expected = expected_shapes(found)
+    if OBS_IMAGE in features:
+        ft = features[OBS_IMAGE]
+        if ft["dtype"] not in ("video", "image") or len(tuple(ft["shape"])) != 3 or tuple(ft["shape"])[2] != 3:
+            raise ValueError(f"feature {OBS_IMAGE!r} must be an (H, W, 3) video or image, got {dict(ft)}")
+    else:
+        raise ValueError(f"missing feature {OBS_IMAGE!r}")
+    missing_teacher = [k for k in TEACHER_KEYS if k not in features]
+    if require_teacher and missing_teacher:
+        raise ValueError(
+            f"missing teacher cache {missing_teacher}: this dataset has no cached 4D-teacher targets "
+            f"(collect it with `bavo-collect`, which computes them, or pass require_teacher=False)"
+        )
+    if TEACHER_Z0 in features or TEACHER_ZF in features:
+        # A learned teacher may have any feature width d: z0 and zf are (N * d,) with the same d.
+        shapes = {k: tuple(features[k]["shape"]) for k in (TEACHER_Z0, TEACHER_ZF) if k in features}
+        for key, shape in shapes.items():
+            if len(shape) != 1 or shape[0] % found or shape[0] == 0:
+                raise ValueError(f"feature {key!r} has shape {shape}, expected (N * d_T,) with N = {found} points")
+        if len(set(shapes.values())) > 1:
+            raise ValueError(f"teacher features must be point-aligned with the same width: {shapes}")
+        d = next(iter(shapes.values()))[0] // found
+        expected[TEACHER_Z0] = expected[TEACHER_ZF] = ((found * d,), "float32")
+    for key, (shape, dtype) in expected.items():
+        if key in TEACHER_KEYS and not require_teacher and key not in features:
+            continue
+        if key in ANNOTATION_KEYS and not require_annotations and key not in features:
+            continue
+        if key not in features:
+            raise ValueError(f"missing feature {key!r} (expected shape {shape}, dtype {dtype})")
+        got_shape, got_dtype = tuple(features[key]["shape"]), features[key]["dtype"]
+        if got_shape != shape:
+            raise ValueError(f"feature {key!r} has shape {got_shape}, expected {shape} for N = {found} points")
+        if got_dtype != dtype:
+            raise ValueError(f"feature {key!r} has dtype {got_dtype!r}, expected {dtype!r}")
+    return found
+
+
+# ------------------------------------------------------------------ reshaping
+def unflatten_points(x, n_points: int, channels: int):
+    """(..., N * C) or (..., N, C) -> (..., N, C); numpy arrays and torch tensors (a view when possible)."""
+    shape = tuple(x.shape)
+    if len(shape) >= 2 and shape[-2:] == (n_points, channels):
+        return x
+    if not shape or shape[-1] != n_points * channels:
+        raise ValueError(f"expected (..., {n_points * channels}) or (..., {n_points}, {channels}), got {shape}")
+    return x.reshape(*shape[:-1], n_points, channels)
+
+
+def flatten_points(x):
+    """(..., N, C) -> (..., N * C) (row-major)."""
+    return x.reshape(*tuple(x.shape)[:-2], x.shape[-2] * x.shape[-1])
+
+
+def unflatten_point_cloud(x, n_points: int):
+    """`observation.point_cloud` -> (..., N, 6): xyz (m) + rgb in [0, 1]."""
+    return unflatten_points(x, n_points, POINT_CHANNELS)
+
+
+def unflatten_point_pixels(x, n_points: int):
+    """`observation.point_pixels` -> (..., N, 2): (u, v) pixel indices as floats."""
+    return unflatten_points(x, n_points, PIXEL_CHANNELS)
+
+
+def unflatten_teacher(x, n_points: int, channels: int = TEACHER_CHANNELS):
+    """`observation.teacher.z0` / `.zf` -> (..., N, d_T)."""
+    return unflatten_points(x, n_points, channels)
+
+
+def unflatten_camera_pose(x):
+    """`observation.camera_pose` (..., 16) -> (..., 4, 4) T_B<-C."""
+    if tuple(x.shape[-2:]) == (4, 4):
+        return x
+    if x.shape[-1] != 16:
+        raise ValueError(f"expected (..., 16) or (..., 4, 4), got {tuple(x.shape)}")
+    return x.reshape(*tuple(x.shape)[:-1], 4, 4)
+
+
+# ------------------------------------------------------------------ per-channel statistics
+def channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)) -> dict[str, np.ndarray]:
+    """Statistics over all leading axes of (..., C) values, per channel: LeRobot's stat keys.
+
+    Returns min, max, mean, std (population), count and q01/q10/q50/q90/q99, each (C,) (count (1,)).
+    """
+    flat = np.asarray(values, dtype=np.float64).reshape(-1, values.shape[-1])
+    stats = {
+        "min": flat.min(0), "max": flat.max(0), "mean": flat.mean(0), "std": flat.std(0),
+        "count": np.array([flat.shape[0]]),
+    }
+    for q in quantiles:
+        stats[f"q{int(round(q * 100)):02d}"] = np.quantile(flat, q, axis=0)
+    return stats
+
+
+def tile_channel_stats(stats: dict[str, np.ndarray], n_points: int) -> dict[str, np.ndarray]:
+    """Per-channel (C,) stats tiled to the flat layout (N * C,), so that LeRobot's element-wise
+    normaliser on the flat feature normalises every point per channel (ManiFlow's `limits`)."""
+    return {k: (v if k == "count" else np.tile(np.asarray(v), n_points)) for k, v in stats.items()}

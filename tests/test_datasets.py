@@ -1,0 +1,377 @@
+"""BAVO datasets: schema, round trip through LeRobot, LeRobot's edit tools, resume, clear errors.
+
+Small real datasets: the scripted expert on Cube Handoff under Stage occlusion, 48 x 64 images,
+32 points, episodes truncated at 30 steps (kept with `keep_failures`), written by the collector
+in this process (`workers=0`).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.datasets.collect import CollectConfig, CollectionError, Collector, collect
+from lerobot_bavo.datasets.hub import check_files, load_bavo_dataset, read_sidecar
+
+SETTINGS = S.DatasetSettings(image_height=48, image_width=64, n_points=32)
+STEPS = 30
+REPO = "tester/bavo_tiny"
+
+
+def _config(root: Path, episodes: int, **kw) -> CollectConfig:
+    base = dict(task="cube_handoff", condition="stage", episodes=episodes, repo_id=REPO, root=root, workers=0,
+                commit_every=1, settings=SETTINGS, episode_length=STEPS, keep_failures=True, progress=False)
+    base.update(kw)
+    return CollectConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def dataset_root(tmp_path_factory) -> Path:
+    """2 episodes (seeds 0, 1), one LeRobot writer session each (so 2 data / video / episode files)."""
+    root = tmp_path_factory.mktemp("ds") / "bavo_tiny"
+    summary = collect(_config(root, episodes=2))
+    assert summary["episodes"] == 2 and summary["frames"] == 2 * STEPS and summary["discarded"] == 0
+    return root
+
+
+def _copy(root: Path, tmp_path: Path, name: str = "copy") -> Path:
+    dst = tmp_path / name
+    shutil.copytree(root, dst)
+    return dst
+
+
+# ----------------------------------------------------------------------------- schema
+def test_schema_flat_layouts_and_reshape_helpers():
+    feats = S.build_features(SETTINGS)
+    assert all(len(ft["shape"]) == 1 for k, ft in feats.items() if k != S.OBS_IMAGE)  # no 2-D features
+    assert feats[S.OBS_POINT_CLOUD]["shape"] == (32 * 6,) and feats[S.TEACHER_Z0]["shape"] == (32 * 3,)
+    assert feats[S.OBS_IMAGE]["dtype"] == "video" and feats[S.OBS_IMAGE]["shape"] == (48, 64, 3)
+    assert S.check_features(feats) == 32
+    x = np.arange(2 * 5 * 32 * 6, dtype=np.float32).reshape(2, 5, 32 * 6)
+    pc = S.unflatten_point_cloud(x, 32)
+    assert pc.shape == (2, 5, 32, 6) and pc[1, 2, 3, 4] == x[1, 2, 3 * 6 + 4]
+    assert S.unflatten_point_cloud(pc, 32) is pc  # already (N, 6): unchanged (env observations)
+    np.testing.assert_array_equal(S.flatten_points(pc), x)
+    import torch
+
+    t = torch.from_numpy(x)
+    assert tuple(S.unflatten_teacher(t[..., :96], 32).shape) == (2, 5, 32, 3)
+    assert tuple(S.unflatten_camera_pose(torch.zeros(3, 16)).shape) == (3, 4, 4)
+    with pytest.raises(ValueError, match="expected"):
+        S.unflatten_point_cloud(x[..., :-1], 32)
+
+
+# ----------------------------------------------------------------------------- round trip
+def test_round_trip_with_delta_timestamps(dataset_root):
+    """Create (collector), finalize, reload; 2 observation steps and 16 actions, as ManiFlow / A-FAR load them."""
+    from lerobot_bavo.datasets.recording import EpisodeRecorder, episode_frames
+    from lerobot_bavo.teacher import teacher_targets
+
+    delta = {
+        S.OBS_STATE: [-0.04, 0.0], S.OBS_POINT_CLOUD: [-0.04, 0.0], S.TEACHER_Z0: [-0.04, 0.0],
+        S.TEACHER_ZF: [-0.04, 0.0], S.TEACHER_VALID: [-0.04, 0.0], S.OBS_IMAGE: [-0.04, 0.0],
+        S.ACTION: [i / 25 for i in range(16)],
+    }
+    ds = load_bavo_dataset(REPO, root=dataset_root, n_points=32, delta_timestamps=delta)
+    assert ds.num_episodes == 2 and len(ds) == 2 * STEPS and ds.fps == 25
+    assert ds.meta.info.features.keys() == S.build_features(SETTINGS).keys() | {
+        "timestamp", "frame_index", "episode_index", "index", "task_index"}
+
+    item = ds[0]  # first frame of episode 0: the previous observation is padding
+    assert tuple(item[S.OBS_STATE].shape) == (2, 21) and tuple(item[S.ACTION].shape) == (16, 21)
+    assert tuple(item[S.OBS_POINT_CLOUD].shape) == (2, 32 * 6) and tuple(item[S.TEACHER_Z0].shape) == (2, 96)
+    assert tuple(item[S.OBS_IMAGE].shape) == (2, 3, 48, 64)
+    assert item[f"{S.OBS_STATE}_is_pad"].tolist() == [True, False] and not item[f"{S.ACTION}_is_pad"].any()
+    last = ds[STEPS - 1]  # last frame of episode 0: actions beyond the end are padding
+    assert last[f"{S.ACTION}_is_pad"].sum() == 15 and last[S.TEACHER_VALID].tolist() == [0.0, 0.0]
+
+    # The stored values are the recorded ones (episodes are deterministic per seed).
+    rec = EpisodeRecorder("cube_handoff", "stage", SETTINGS, episode_length=STEPS)
+    try:
+        record = rec.record(seed=1)
+    finally:
+        rec.close()
+    cols = episode_frames(record, teacher_targets(record))
+    t = 7
+    item = ds[STEPS + t]  # episode 1, frame 7
+    assert int(item["episode_index"]) == 1 and int(item["frame_index"]) == t
+    for key in (S.OBS_STATE, S.OBS_POINT_CLOUD, S.TEACHER_Z0, S.TEACHER_ZF):
+        np.testing.assert_allclose(item[key][-1].numpy(), cols[key][t], atol=1e-6)
+        np.testing.assert_allclose(item[key][0].numpy(), cols[key][t - 1], atol=1e-6)
+    np.testing.assert_allclose(item[S.ACTION].numpy(), cols[S.ACTION][t:t + 16], atol=1e-6)
+    raw = ds.hf_dataset[STEPS + t]
+    assert raw[S.ANN_SEED] == 1 and raw[S.ANN_EVENT] == cols[S.ANN_EVENT][t, 0]
+    np.testing.assert_allclose(np.asarray(raw[S.OBS_POINT_PIXELS]), cols[S.OBS_POINT_PIXELS][t])
+    # Video frames decode (pyav) close to the recorded images (lossy AV1).
+    img = (item[S.OBS_IMAGE][-1].permute(1, 2, 0).numpy() * 255.0)
+    assert np.abs(img - record.rgb[t].astype(np.float64)).mean() < 12.0
+
+
+def test_annotations_never_reach_a_policy(dataset_root):
+    from lerobot.configs import FeatureType
+    from lerobot.processor.converters import batch_to_transition
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    ds = load_bavo_dataset(REPO, root=dataset_root)
+    pf = dataset_to_policy_features(ds.meta.features)
+    assert not any(k.startswith("annotation.") for k in pf)
+    assert pf[S.TEACHER_Z0].type is FeatureType.STATE and pf[S.ACTION].type is FeatureType.ACTION
+    batch = {k: v for k, v in ds[3].items() if k != "task"}
+    transition = batch_to_transition(batch)
+    kept = set(transition["observation"]) | set(transition.get("complementary_data") or {})
+    assert S.TEACHER_ZF in kept and not any(k.startswith("annotation.") for k in kept)
+
+
+def test_collection_record_card_and_stats(dataset_root):
+    rec = read_sidecar(dataset_root)
+    assert [e["seed"] for e in rec["episodes"]] == [0, 1] and rec["discarded"] == [] and rec["complete"]
+    assert rec["pending_commit"] is None and not (dataset_root / ".bavo_staging").exists()
+    assert rec["settings"]["n_points"] == 32 and rec["settings"]["teacher"]["n_future"] == 15
+    card = (dataset_root / "README.md").read_text()
+    assert "cube_handoff" in card and "Stage Occlusion" in card and "observation.teacher.zf" in card
+    assert "simulator-exact" in card and "0 unsuccessful attempts were discarded" in card
+    stats = json.loads((dataset_root / "meta" / "stats.json").read_text())[S.OBS_POINT_CLOUD]
+    for key in ("min", "max", "mean", "std", "q01", "q99"):
+        per_point = np.asarray(stats[key]).reshape(32, 6)
+        np.testing.assert_allclose(per_point, np.tile(per_point[0], (32, 1)))  # per channel, tiled
+    assert np.allclose(np.asarray(stats["min"])[3:6], 0.0, atol=0.3) and np.asarray(stats["max"])[2] < 0.61
+
+
+# ----------------------------------------------------------------------------- LeRobot's tools
+def test_lerobot_delete_and_merge_work_on_our_datasets(dataset_root, tmp_path):
+    from lerobot.datasets.dataset_tools import delete_episodes, merge_datasets
+
+    ds = load_bavo_dataset(REPO, root=dataset_root)
+    kept = delete_episodes(ds, episode_indices=[0], output_dir=tmp_path / "deleted", repo_id="tester/deleted")
+    kept = load_bavo_dataset("tester/deleted", root=tmp_path / "deleted")
+    assert kept.num_episodes == 1 and len(kept) == STEPS
+    assert kept.hf_dataset[0][S.ANN_SEED] == 1 and kept[0][S.OBS_POINT_CLOUD].shape == (32 * 6,)
+
+    other_root = _copy(dataset_root, tmp_path, "other")
+    other = load_bavo_dataset("tester/other", root=other_root)
+    merged = merge_datasets([ds, other], output_repo_id="tester/merged", output_dir=tmp_path / "merged")
+    merged = load_bavo_dataset("tester/merged", root=tmp_path / "merged")
+    assert merged.num_episodes == 4 and len(merged) == 4 * STEPS
+    assert [merged.hf_dataset[i * STEPS][S.ANN_SEED] for i in range(4)] == [0, 1, 0, 1]
+    _ = merged[3 * STEPS + 5][S.OBS_IMAGE]  # videos of the merged dataset decode
+
+
+# ----------------------------------------------------------------------------- errors
+def test_corrupted_or_mismatched_datasets_give_clear_errors(dataset_root, tmp_path):
+    with pytest.raises(FileNotFoundError, match="no LeRobot dataset"):
+        load_bavo_dataset(REPO, root=tmp_path / "nothing")
+    with pytest.raises(ValueError, match=r"32 points per cloud .* but 256 were requested"):
+        load_bavo_dataset(REPO, root=dataset_root, n_points=256)
+
+    # A truncated data file (e.g. a writer killed before finalize()).
+    bad = _copy(dataset_root, tmp_path, "truncated")
+    data_file = sorted((bad / "data").glob("*/*.parquet"))[-1]
+    data_file.write_bytes(data_file.read_bytes()[: data_file.stat().st_size // 2])
+    with pytest.raises(ValueError, match=f"corrupted data file .*{data_file.name}"):
+        load_bavo_dataset(REPO, root=bad)
+
+    # Corrupted metadata.
+    bad = _copy(dataset_root, tmp_path, "badinfo")
+    (bad / "meta" / "info.json").write_text("{ not json")
+    with pytest.raises(ValueError, match="corrupted dataset metadata .*info.json"):
+        load_bavo_dataset(REPO, root=bad)
+
+    # A video that is not a video.
+    bad = _copy(dataset_root, tmp_path, "badvideo")
+    video = sorted((bad / "videos").glob("*/*/*.mp4"))[0]
+    video.write_bytes(b"\x00" * 1000)
+    with pytest.raises(ValueError, match=f"corrupted video file .*{video.name}"):
+        load_bavo_dataset(REPO, root=bad)
+
+    def edited(name, edit):
+        root = _copy(dataset_root, tmp_path, name)
+        info = json.loads((root / "meta" / "info.json").read_text())
+        edit(info["features"])
+        (root / "meta" / "info.json").write_text(json.dumps(info))
+        return root
+
+    no_teacher = edited("noteacher", lambda f: [f.pop(k) for k in S.TEACHER_KEYS])
+    with pytest.raises(ValueError, match="missing teacher cache"):
+        load_bavo_dataset(REPO, root=no_teacher)
+    no_pose = edited("nopose", lambda f: f.pop(S.OBS_CAMERA_POSE))
+    with pytest.raises(ValueError, match="missing feature 'observation.camera_pose'"):
+        load_bavo_dataset(REPO, root=no_pose)
+    wrong = edited("wrongwidth", lambda f: f[S.TEACHER_ZF].update(shape=[32 * 4]))
+    with pytest.raises(ValueError, match="point-aligned with the same width"):
+        load_bavo_dataset(REPO, root=wrong)
+    wrong = edited("wrongshape", lambda f: f[S.OBS_POINT_PIXELS].update(shape=[50]))
+    with pytest.raises(ValueError, match=r"'observation.point_pixels' has shape \(50,\), expected \(64,\)"):
+        load_bavo_dataset(REPO, root=wrong)
+    wrong = edited("wrongdtype", lambda f: f[S.ANN_PROGRESS].update(dtype="float32"))
+    with pytest.raises(ValueError, match="'annotation.progress' has dtype 'float32', expected 'int64'"):
+        load_bavo_dataset(REPO, root=wrong)
+    unflat = edited("twod", lambda f: f[S.OBS_POINT_CLOUD].update(shape=[32, 6]))
+    with pytest.raises(ValueError, match="flat layout"):
+        load_bavo_dataset(REPO, root=unflat)
+
+    # A finished collection whose upload fails (here: offline, no login) says so and loses nothing.
+    offline = _copy(dataset_root, tmp_path, "offline")
+    with pytest.raises(CollectionError, match="upload .* failed.*huggingface-cli login"):
+        collect(_config(offline, episodes=2, push_to_hub=True))
+    assert load_bavo_dataset(REPO, root=offline).num_episodes == 2
+
+    # Two collections never write one dataset at the same time.
+    busy = _copy(dataset_root, tmp_path, "busy")
+    lock = Collector(_config(busy, episodes=3))._lock()
+    try:
+        with pytest.raises(CollectionError, match="another bavo-collect is writing"):
+            collect(_config(busy, episodes=3))
+    finally:
+        lock.close()
+
+    # Continuing a collection with other settings is refused.
+    other = _copy(dataset_root, tmp_path, "settings")
+    with pytest.raises(CollectionError, match="other settings .*n_points"):
+        collect(_config(other, episodes=3, settings=S.DatasetSettings(48, 64, 16)))
+    with pytest.raises(CollectionError, match="not a LeRobot dataset"):
+        (tmp_path / "junk").mkdir()
+        (tmp_path / "junk" / "file.txt").write_text("x")
+        collect(_config(tmp_path / "junk", episodes=1))
+
+
+# ----------------------------------------------------------------------------- resume
+class _Killed(BaseException):
+    """Stands in for SIGKILL: nothing after it runs (the rollback is disabled for that run)."""
+
+
+def _discard_odd_seeds(real_run_job):
+    """A run_job that reports odd seeds as unsuccessful (to exercise discarding)."""
+
+    def run(job):
+        summary = real_run_job(job)
+        if summary["seed"] % 2:
+            staging = Path(job["staging"])
+            (staging / f"seed_{summary['seed']:08d}.npz").unlink(missing_ok=True)
+            summary.update(success=False, kept=False)
+            (staging / f"seed_{summary['seed']:08d}.json").write_text(json.dumps(summary))
+        return summary
+
+    return run
+
+
+def test_resume_after_a_kill_inside_a_commit(tmp_path, monkeypatch):
+    """Kill while the second writer session is half written; the next run rolls it back and finishes
+    with exactly the requested episodes: unique seeds, in order, discards recorded, nothing re-run."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    import lerobot_bavo.datasets.collect as collect_mod
+
+    monkeypatch.setattr(collect_mod, "run_job", _discard_odd_seeds(collect_mod.run_job))
+    root = tmp_path / "resumed"
+    cfg = _config(root, episodes=4, commit_every=2, episode_length=20)
+
+    real_save = LeRobotDataset.save_episode
+    calls = {"n": 0}
+
+    def dying_save(self, *a, **kw):
+        calls["n"] += 1
+        if calls["n"] == 4:  # episodes 0, 1 committed; episode 2 saved; die before saving episode 3
+            raise _Killed()
+        return real_save(self, *a, **kw)
+
+    with monkeypatch.context() as m:
+        m.setattr(LeRobotDataset, "save_episode", dying_save)
+        m.setattr(Collector, "_rollback", lambda self: None)
+        with pytest.raises(_Killed):
+            collect(cfg)
+    rec = read_sidecar(root)
+    assert rec["pending_commit"] == {"seeds": [4, 6], "next_seed": 7}
+    assert [e["seed"] for e in rec["episodes"]] == [0, 2]
+    with pytest.raises(ValueError, match="inconsistent|corrupted"):  # the half-written session
+        check_files(root)
+
+    summary = collect(cfg)
+    assert summary["episodes"] == 4 and summary["attempts_this_run"] == 0  # staged episodes reused
+    rec = read_sidecar(root)
+    assert [e["seed"] for e in rec["episodes"]] == [0, 2, 4, 6]
+    assert [e["episode_index"] for e in rec["episodes"]] == [0, 1, 2, 3]
+    assert [d["seed"] for d in rec["discarded"]] == [1, 3, 5]
+    ds = load_bavo_dataset(REPO, root=root)
+    assert ds.num_episodes == 4 and len(ds) == 4 * 20
+    seeds = [ds.hf_dataset[i * 20][S.ANN_SEED] for i in range(4)]
+    assert seeds == [0, 2, 4, 6]
+    assert sorted({int(s) for s in ds.hf_dataset[S.ANN_SEED]}) == [0, 2, 4, 6]
+    assert "discarded" in (root / "README.md").read_text()
+
+    # Asking for more later continues with new seeds only.
+    summary = collect(_config(root, episodes=5, commit_every=2, episode_length=20))
+    assert summary["episodes"] == 5 and summary["new_this_run"] == 1
+    assert [e["seed"] for e in read_sidecar(root)["episodes"]] == [0, 2, 4, 6, 8]
+    # Asking for fewer or as many: nothing to do.
+    assert collect(_config(root, episodes=5, commit_every=2, episode_length=20))["attempts_this_run"] == 0
+
+
+# ----------------------------------------------------------------------------- a learned teacher
+class _PixelTeacher:
+    """A stand-in learned teacher (RGB clip in, features out): answers with (u, v) normalised,
+    the target time and the mean colour of the target frame, so the plumbing can be checked."""
+
+    name = "pixel-toy"
+    feature_dim = 4
+
+    def answer(self, clip, queries):
+        from lerobot_bavo.teacher import normalized_uv
+
+        h, w = clip.image_size
+        uv = normalized_uv(queries, h, w)
+        frames = clip.episode_frames(queries[:, 3])
+        colour = clip.episode_rgb[frames].reshape(len(queries), -1).mean(axis=1) / 255.0
+        return np.column_stack([uv, queries[:, 3] / 31.0, colour]).astype(np.float32)
+
+
+def test_a_learned_teacher_recomputes_the_cache_of_a_stored_dataset(dataset_root, tmp_path):
+    from lerobot_bavo.teacher import Teacher, make_clip
+    from lerobot_bavo.teacher.cache import dataset_episode, recompute_teacher_cache
+
+    assert isinstance(_PixelTeacher(), Teacher)
+    ds = load_bavo_dataset(REPO, root=dataset_root)
+    ep = dataset_episode(ds, 1)
+    assert ep.rgb.shape == (STEPS, 48, 64, 3) and ep.point_pixels.shape == (STEPS, 32, 2)
+    clip = make_clip(ep, anchor=3)
+    assert not clip.has_privileged_state and clip.rgb.shape == (32, 48, 64, 3)
+
+    new = recompute_teacher_cache(ds, _PixelTeacher(), output_dir=tmp_path / "recached", repo_id="tester/recached")
+    new = load_bavo_dataset("tester/recached", root=tmp_path / "recached")
+    assert new.meta.features[S.TEACHER_Z0]["shape"] == (32 * 4,)
+    item = new[STEPS + 2]
+    z0 = S.unflatten_teacher(item[S.TEACHER_Z0].numpy(), 32, 4)
+    zf = S.unflatten_teacher(item[S.TEACHER_ZF].numpy(), 32, 4)
+    np.testing.assert_allclose(z0[:, 2], 16 / 31.0) and np.testing.assert_allclose(zf[:, 2], 31 / 31.0)
+    pix = S.unflatten_point_pixels(ds[STEPS + 2][S.OBS_POINT_PIXELS].numpy(), 32)
+    np.testing.assert_allclose(z0[:, 0], (pix[:, 0] + 0.5) / 64, atol=1e-6)
+    assert float(item[S.TEACHER_VALID]) == 1.0 and float(new[2 * STEPS - 1][S.TEACHER_VALID]) == 0.0
+    assert read_sidecar(tmp_path / "recached")["settings"]["teacher"]["name"] == "pixel-toy"
+
+
+@pytest.mark.parametrize("condition", ["clean", "random"])
+def test_recorder_annotations_under_other_conditions(condition):
+    from lerobot_bavo.datasets.recording import EpisodeRecorder, episode_frames
+    from lerobot_bavo.teacher import teacher_targets
+
+    rec = EpisodeRecorder("cube_handoff", condition, SETTINGS, episode_length=8)
+    try:
+        record = rec.record(seed=3)
+    finally:
+        rec.close()
+    cols = episode_frames(record, teacher_targets(record))
+    feats = S.build_features(SETTINGS)
+    for key, ft in feats.items():  # exactly the dtypes and shapes LeRobot's add_frame validates
+        assert cols[key].dtype == np.dtype(ft["dtype"] if ft["dtype"] != "video" else "uint8"), key
+        assert cols[key].shape[1:] == tuple(ft["shape"]), key
+    if condition == "clean":
+        assert (cols[S.ANN_EVENT] == -1).all() and (cols[S.ANN_TARGET] == -1).all()
+        assert (cols[S.ANN_VISIBILITY] == -1).all() and not cols[S.ANN_EVENT_START].any()
+    else:
+        assert cols[S.ANN_EVENT][0, 0] == 0 and cols[S.ANN_EVENT_START][0, 0] == 1.0
+        assert cols[S.ANN_TARGET][0, 0] == 0 and 0.0 <= cols[S.ANN_VISIBILITY][0, 0] <= 0.2
+        assert cols[S.ANN_ACTIVE][0, 0] == 1.0  # the expert starts recovering the view at once
