@@ -10,4 +10,5 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import lerobot_bavo.envs  # noqa: E402, F401
 import lerobot_bavo.envs.configs  # noqa: E402, F401
 
-# --- policy registration ("maniflow", "afar"): the lead adds `import lerobot_bavo.policies` here ---
+# LeRobot policy types "maniflow" and "afar".
+import lerobot_bavo.policies  # noqa: E402, F401

@@ -1,0 +1,254 @@
+"""Configuration of the ManiFlow point-cloud policy (Yan et al., CoRL 2025) for LeRobot 0.6.1."""
+
+import math
+from dataclasses import dataclass, field
+
+from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
+from lerobot.optim import AdamWConfig
+from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+OBS_POINT_CLOUD = "observation.point_cloud"
+# Training-only targets ride along under this prefix (see `validate_features`).
+OBS_TEACHER_PREFIX = "observation.teacher"
+
+# Size presets. `paper` is ManiFlow's DiT-X (768 wide, 12 layers, 8 heads; ~180 M parameters) with the
+# xyz+rgb PointNet (6->64->128->256->512->128). `cpu` keeps the PointNet and shrinks DiT-X to 192 wide x 3 layers
+# x 4 heads (~3.3 M parameters): on the project's 2-core machines a batch-32 training step takes ~0.7 s and one
+# action chunk at batch 1 on one thread ~10-14 ms with 1-2 flow steps (benchmarks/policy_speed.py; the cross-
+# attention keys/values of the 2 x 256 point tokens dominate both). See DESIGN.md "CPU budget".
+MANIFLOW_PRESETS: dict[str, dict] = {
+    "paper": {
+        "dit_hidden_dim": 768,
+        "dit_num_layers": 12,
+        "dit_num_heads": 8,
+        "time_embed_hidden_dim": 512,
+        "point_encoder_hidden_dims": (64, 128, 256, 512),
+    },
+    "cpu": {
+        "dit_hidden_dim": 192,
+        "dit_num_layers": 3,
+        "dit_num_heads": 4,
+        "time_embed_hidden_dim": 256,
+        "point_encoder_hidden_dims": (64, 128, 256, 512),
+    },
+}
+
+
+@PreTrainedConfig.register_subclass("maniflow")
+@dataclass
+class ManiFlowConfig(PreTrainedConfig):
+    """Configuration class for ManiFlowPolicy: per-point tokens + DiT-X + consistency flow matching.
+
+    Defaults follow ManiFlow (arXiv 2509.01819) at the BAVO-Bench settings of the A-FAR paper (256 colored
+    points, observation horizon 2, action horizon 16, 21-d state and action).
+
+    Inputs and outputs:
+        - `observation.point_cloud` (N, C) with C = `point_channels` (6: xyz + rgb in [0, 1]; 3: xyz), required.
+          The flat row-major layout (N * C,) of BAVO datasets is accepted too (the processor reshapes env
+          observations to the trained layout; the model unflattens).
+        - `observation.state` (S,), required.
+        - `action` (A,), required output.
+        - Keys under `observation.teacher.*` are training-only targets (used by A-FAR) and are removed from
+          `input_features` by `validate_features`, so they are never normalised and never needed at eval.
+        - Other `observation.*` keys (e.g. `observation.point_pixels`) are ignored by the model.
+        - The frame of the point cloud (robot base by default, camera frame for the ablation) is a data/env
+          option; the policy is agnostic to it.
+
+    Normalisation: ManiFlow's `limits` mode maps every last-axis channel to [-1, 1]; LeRobot's MIN_MAX does the
+    same. LeRobot stores stats of a (N, 6) feature per channel, shape (6,), which broadcast over (B, To, N, 6),
+    so the default normaliser handles the point cloud (it is a STATE-typed feature). A flat (N * 6,) feature
+    has element-wise (N * 6,) stats: they must be per-channel stats tiled N times (as BAVO datasets write them,
+    `lerobot_bavo.datasets.schema.tile_channel_stats`), otherwise each point slot gets its own scale.
+    Difference: ManiFlow maps channels whose range is < 1e-4 to 0, LeRobot divides by eps and maps them to -1.
+
+    Size presets: the architecture fields left at `None` are filled from `MANIFLOW_PRESETS[preset]`; fields set
+    explicitly (e.g. `--policy.dit_num_layers=2`) override the preset. `preset="paper"` is ManiFlow's size
+    (GPU only, ~46 s per step on 2 CPU cores); `preset="cpu"` is 192 wide x 3 layers x 4 heads.
+
+    Args:
+        n_obs_steps: Number of observation steps given to the policy (current one and the ones before it).
+            Their point tokens are concatenated into one context of n_obs_steps * N tokens.
+        horizon: Number of action steps predicted per chunk, counted from the first observation step
+            (the chunk covers steps t - n_obs_steps + 1 ... t - n_obs_steps + horizon).
+        n_action_steps: Number of predicted actions executed per policy call, starting at the current step.
+            Must be <= horizon - n_obs_steps + 1. Default 8: replans every 8 control steps (0.32 s at 25 Hz),
+            reactive enough for random-time occlusions while executing a coherent half of the chunk, and
+            halves eval-time policy calls compared with 4.
+        normalization_mapping: FeatureType name -> NormalizationMode. STATE (state and point cloud) and ACTION
+            use MIN_MAX (ManiFlow's `limits`); VISUAL is IDENTITY because images are not used.
+        push_to_hub: Whether lerobot-train pushes the checkpoint to the Hub. False here (LeRobot's default is
+            True, which fails offline with "'repo_id' argument missing").
+        point_channels: Channels per point of `observation.point_cloud` (6 = xyz + rgb, 3 = xyz); needed to
+            unflatten a flat (N * C,) feature.
+        preset: Size preset, one of `MANIFLOW_PRESETS` ("paper", "cpu").
+        point_encoder_hidden_dims: Hidden widths of the per-point MLP (Linear + LayerNorm + ReLU each); None
+            means from the preset (paper and cpu: (64, 128, 256, 512)).
+        point_feature_dim: Width of each point token after the final Linear + LayerNorm (paper: 128).
+        state_feature_dim: Width of the state MLP (S -> d -> ReLU -> d; paper: 64). The state feature of each
+            observation step is concatenated to every point token of that step.
+        dit_hidden_dim: DiT-X width; None means from the preset (paper 768, cpu 192).
+        dit_num_layers: Number of DiT-X blocks; None means from the preset (paper 12, cpu 3).
+        dit_num_heads: Attention heads per DiT-X block; None means from the preset (paper 8, cpu 4).
+        dit_mlp_ratio: Hidden width of the block MLP relative to dit_hidden_dim (paper 4).
+        dropout: Dropout in DiT-X attention and MLPs (paper 0.1).
+        time_freq_dim: Size of the sinusoidal embedding of t and of dt (paper 128; raw t in [0, 1]).
+        time_embed_hidden_dim: Hidden width of the time MLP (sinusoid -> hidden -> Mish -> width); None means
+            from the preset (paper 512, cpu 256).
+        num_inference_steps: Euler steps from noise (t = 0) to data (t = 1) at inference. ManiFlow claims 1-2
+            steps thanks to the consistency objective (its released scripts use 10).
+        use_ema_for_inference: Predict actions with the EMA copy (ManiFlow's eval model). The EMA copy is always
+            kept, since it is the consistency teacher.
+        ema_power: EMA warm-up power: decay at update k is clip(1 - (1 + k) ** -ema_power, 0, ema_max_decay).
+        ema_max_decay: Upper bound of the EMA decay.
+        flow_batch_ratio: Fraction of each batch trained with plain flow matching; the remaining
+            int((1 - ratio) * B) samples are trained with the consistency objective.
+        flow_t_scale: Flow-matching times are t = flow_t_scale * Beta(flow_t_beta_a, flow_t_beta_b).
+        flow_t_beta_a: First Beta parameter of the flow-matching time distribution.
+        flow_t_beta_b: Second Beta parameter of the flow-matching time distribution.
+        consistency_t_bins: Consistency times are drawn from {0, 1/bins, ..., (bins - 1)/bins}.
+        do_mask_loss_for_padding: Mask actions beyond the episode ends out of the loss (`action_is_pad`).
+            ManiFlow trains on edge-padded chunks, so False by default.
+        optimizer_lr: AdamW learning rate of the training preset.
+        optimizer_betas: AdamW betas.
+        optimizer_eps: AdamW epsilon.
+        optimizer_weight_decay: AdamW weight decay.
+        optimizer_grad_clip_norm: Gradient clipping used by lerobot-train; 0 disables it (ManiFlow clips none).
+        scheduler_warmup_steps: Linear warm-up steps of the cosine learning-rate schedule.
+    """
+
+    # Input / output structure.
+    n_obs_steps: int = 2
+    horizon: int = 16
+    n_action_steps: int = 8
+
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.MIN_MAX,
+            "ACTION": NormalizationMode.MIN_MAX,
+        }
+    )
+
+    push_to_hub: bool = False  # type: ignore[assignment]
+
+    # Architecture.
+    point_channels: int = 6
+    preset: str = "paper"
+    point_encoder_hidden_dims: tuple[int, ...] | None = None
+    point_feature_dim: int = 128
+    state_feature_dim: int = 64
+    dit_hidden_dim: int | None = None
+    dit_num_layers: int | None = None
+    dit_num_heads: int | None = None
+    dit_mlp_ratio: float = 4.0
+    dropout: float = 0.1
+    time_freq_dim: int = 128
+    time_embed_hidden_dim: int | None = None
+
+    # Inference.
+    num_inference_steps: int = 2
+    use_ema_for_inference: bool = True
+
+    # Training objective and EMA.
+    ema_power: float = 0.75
+    ema_max_decay: float = 0.9999
+    flow_batch_ratio: float = 0.75
+    flow_t_scale: float = 0.999
+    flow_t_beta_a: float = 1.0
+    flow_t_beta_b: float = 1.5
+    consistency_t_bins: int = 10
+    do_mask_loss_for_padding: bool = False
+
+    # Training preset.
+    optimizer_lr: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.9, 0.95)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-3
+    optimizer_grad_clip_norm: float = 0.0
+    scheduler_warmup_steps: int = 500
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.preset not in MANIFLOW_PRESETS:
+            raise ValueError(f"`preset` must be one of {sorted(MANIFLOW_PRESETS)}. Got {self.preset!r}.")
+        for name, value in MANIFLOW_PRESETS[self.preset].items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
+        self.point_encoder_hidden_dims = tuple(int(d) for d in self.point_encoder_hidden_dims)
+
+        if self.dit_hidden_dim % self.dit_num_heads != 0:
+            raise ValueError(
+                f"`dit_hidden_dim` ({self.dit_hidden_dim}) must be divisible by `dit_num_heads` "
+                f"({self.dit_num_heads})."
+            )
+        if self.n_obs_steps < 1:
+            raise ValueError(f"`n_obs_steps` must be >= 1. Got {self.n_obs_steps}.")
+        if not 1 <= self.n_action_steps <= self.horizon - self.n_obs_steps + 1:
+            raise ValueError(
+                "`n_action_steps` must be in [1, horizon - n_obs_steps + 1] = "
+                f"[1, {self.horizon - self.n_obs_steps + 1}]. Got {self.n_action_steps}."
+            )
+        if self.point_channels not in (3, 6):
+            raise ValueError(f"`point_channels` must be 3 (xyz) or 6 (xyz + rgb). Got {self.point_channels}.")
+        if self.num_inference_steps < 1:
+            raise ValueError(f"`num_inference_steps` must be >= 1. Got {self.num_inference_steps}.")
+        if not 0.0 <= self.flow_batch_ratio <= 1.0:
+            raise ValueError(f"`flow_batch_ratio` must be in [0, 1]. Got {self.flow_batch_ratio}.")
+        if self.consistency_t_bins < 1:
+            raise ValueError(f"`consistency_t_bins` must be >= 1. Got {self.consistency_t_bins}.")
+
+    # LeRobot interface.
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> CosineAnnealingWithWarmupSchedulerConfig:
+        # LeRobot's `diffuser` cosine scheduler needs the optional `diffusers` package; this one has the same
+        # shape (linear warm-up, then cosine to zero over the remaining steps) with no extra dependency.
+        return CosineAnnealingWithWarmupSchedulerConfig(num_warmup_steps=self.scheduler_warmup_steps)
+
+    def validate_features(self) -> None:
+        if self.input_features:
+            for key in [k for k in self.input_features if k.startswith(OBS_TEACHER_PREFIX)]:
+                del self.input_features[key]
+        inputs = self.input_features or {}
+        if OBS_POINT_CLOUD not in inputs:
+            raise ValueError(f"{type(self).__name__} needs '{OBS_POINT_CLOUD}' among the input features.")
+        shape = tuple(inputs[OBS_POINT_CLOUD].shape)
+        c = self.point_channels
+        if not ((len(shape) == 2 and shape[1] == c) or (len(shape) == 1 and shape[0] % c == 0 and shape[0] >= c)):
+            raise ValueError(
+                f"'{OBS_POINT_CLOUD}' must have shape (N, {c}) or the flat (N * {c},) (`point_channels`={c}). "
+                f"Got {shape}."
+            )
+        if OBS_STATE not in inputs:
+            raise ValueError(f"{type(self).__name__} needs '{OBS_STATE}' among the input features.")
+        if self.output_features and ACTION not in self.output_features:
+            raise ValueError(f"{type(self).__name__} needs '{ACTION}' among the output features.")
+        for key in (OBS_POINT_CLOUD, OBS_STATE):
+            if inputs[key].type is not FeatureType.STATE:
+                raise ValueError(f"'{key}' must be a STATE feature. Got {inputs[key].type}.")
+
+    @property
+    def num_points(self) -> int:
+        """N, from the point-cloud feature ((N, C) or flat (N * C,))."""
+        shape = self.input_features[OBS_POINT_CLOUD].shape
+        return int(math.prod(shape)) // self.point_channels
+
+    @property
+    def observation_delta_indices(self) -> list:
+        return list(range(1 - self.n_obs_steps, 1))
+
+    @property
+    def action_delta_indices(self) -> list:
+        return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None

@@ -1,0 +1,552 @@
+"""ManiFlow: per-point tokens + DiT-X trained with consistency flow matching (arXiv 2509.01819).
+
+Layout (LeRobot habit): `ManiFlowPolicy` is a thin `PreTrainedPolicy` holding the queues, the loss and the EMA
+copy; `ManiFlowModel` is the network (point encoder, state MLP, DiT-X).
+
+Conventions (one throughout): flow time t = 0 is Gaussian noise, t = 1 is data; x_t = (1 - t) x0 + t x1 and the
+network predicts the velocity x1 - x0 given (x_t, t, dt), dt being the step size (0 for plain flow matching).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections import deque
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from torch import Tensor, nn
+
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.policies.utils import populate_queues
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from .configuration_maniflow import OBS_POINT_CLOUD, ManiFlowConfig
+
+# --------------------------------------------------------------------------------------------------------------
+# Observation encoder.
+# --------------------------------------------------------------------------------------------------------------
+
+
+class PointEncoder(nn.Module):
+    """DP3/ManiFlow PointNet without pooling: (Linear + LayerNorm + ReLU) per hidden width, then Linear +
+    LayerNorm to `out_dim`. Applied to each point independently, so it yields one token per point."""
+
+    def __init__(self, in_channels: int, hidden_dims: tuple[int, ...], out_dim: int):
+        super().__init__()
+        layers: list[nn.Module] = []
+        c = in_channels
+        for h in hidden_dims:
+            layers += [nn.Linear(c, h), nn.LayerNorm(h), nn.ReLU()]
+            c = h
+        self.mlp = nn.Sequential(*layers)
+        self.proj = nn.Sequential(nn.Linear(c, out_dim), nn.LayerNorm(out_dim))
+
+    def forward(self, points: Tensor) -> Tensor:
+        """(..., N, C) -> (..., N, out_dim)."""
+        return self.proj(self.mlp(points))
+
+
+class StateEncoder(nn.Module):
+    """S -> d -> ReLU -> d."""
+
+    def __init__(self, state_dim: int, out_dim: int):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(state_dim, out_dim), nn.ReLU(), nn.Linear(out_dim, out_dim))
+
+    def forward(self, state: Tensor) -> Tensor:
+        return self.net(state)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# DiT-X.
+# --------------------------------------------------------------------------------------------------------------
+
+
+def sinusoidal_embedding(t: Tensor, dim: int, max_period: float = 10000.0) -> Tensor:
+    """(B,) raw times -> (B, dim) [cos, sin] features."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(max_period) * torch.arange(half, device=t.device, dtype=torch.float32) / half)
+    args = t.float()[:, None] * freqs[None]
+    emb = torch.cat([torch.cos(args), torch.sin(args)], dim=-1)
+    if dim % 2:
+        emb = F.pad(emb, (0, 1))
+    return emb
+
+
+class TimeEmbedding(nn.Module):
+    """Sinusoid(freq_dim) -> Linear -> Mish -> Linear(out_dim)."""
+
+    def __init__(self, freq_dim: int, hidden_dim: int, out_dim: int):
+        super().__init__()
+        self.freq_dim = freq_dim
+        self.mlp = nn.Sequential(nn.Linear(freq_dim, hidden_dim), nn.Mish(), nn.Linear(hidden_dim, out_dim))
+
+    def forward(self, t: Tensor) -> Tensor:
+        return self.mlp(sinusoidal_embedding(t, self.freq_dim).to(self.mlp[0].weight.dtype))
+
+
+def _split_heads(x: Tensor, heads: int) -> Tensor:
+    b, n, d = x.shape
+    return x.view(b, n, heads, d // heads).transpose(1, 2)  # (B, h, N, d/h)
+
+
+def _merge_heads(x: Tensor) -> Tensor:
+    b, h, n, d = x.shape
+    return x.transpose(1, 2).reshape(b, n, h * d)
+
+
+class SelfAttention(nn.Module):
+    def __init__(self, dim: int, heads: int, dropout: float):
+        super().__init__()
+        self.heads = heads
+        self.dropout = dropout
+        self.qkv = nn.Linear(dim, 3 * dim)
+        self.out = nn.Linear(dim, dim)
+
+    def forward(self, x: Tensor) -> Tensor:
+        q, k, v = (_split_heads(z, self.heads) for z in self.qkv(x).chunk(3, dim=-1))
+        y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
+        return self.out(_merge_heads(y))
+
+
+class CrossAttention(nn.Module):
+    """Queries from x, keys/values from a memory. `kv(memory)` can be computed once and reused (the
+    observation context is the same for every flow step)."""
+
+    def __init__(self, dim: int, heads: int, dropout: float, memory_dim: int | None = None):
+        super().__init__()
+        self.heads = heads
+        self.dropout = dropout
+        self.q = nn.Linear(dim, dim)
+        self.kv_proj = nn.Linear(memory_dim or dim, 2 * dim)
+        self.out = nn.Linear(dim, dim)
+
+    def kv(self, memory: Tensor) -> tuple[Tensor, Tensor]:
+        k, v = self.kv_proj(memory).chunk(2, dim=-1)
+        # Contiguous once here rather than inside every attention call that reuses them.
+        return _split_heads(k, self.heads).contiguous(), _split_heads(v, self.heads).contiguous()
+
+    def forward(self, x: Tensor, kv: tuple[Tensor, Tensor]) -> Tensor:
+        q = _split_heads(self.q(x), self.heads)
+        y = F.scaled_dot_product_attention(q, kv[0], kv[1], dropout_p=self.dropout if self.training else 0.0)
+        return self.out(_merge_heads(y))
+
+
+def split_modulation(modulation: Tensor) -> tuple[Tensor, ...]:
+    """adaln(c) (B, 9 D) -> (shift, 1 + scale, gate) x 3, each (B, 1, D)."""
+    sh1, sc1, g1, sh2, sc2, g2, sh3, sc3, g3 = modulation[:, None].chunk(9, dim=-1)
+    return sh1, 1 + sc1, g1, sh2, 1 + sc2, g2, sh3, 1 + sc3, g3
+
+
+class DiTXBlock(nn.Module):
+    """AdaLN-Zero block: self-attention over action tokens, cross-attention to the observation context, MLP.
+    Shift/scale/gate of each sub-layer come from the (t, dt) conditioning; the modulation Linear is zero-init,
+    so every block starts as the identity."""
+
+    def __init__(self, dim: int, heads: int, mlp_ratio: float, dropout: float):
+        super().__init__()
+        self.norm1 = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        self.self_attn = SelfAttention(dim, heads, dropout)
+        self.norm2 = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        self.cross_attn = CrossAttention(dim, heads, dropout)
+        self.norm3 = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        hidden = int(dim * mlp_ratio)
+        self.mlp = nn.Sequential(
+            nn.Linear(dim, hidden),
+            nn.GELU(approximate="tanh"),
+            nn.Dropout(dropout),
+            nn.Linear(hidden, dim),
+            nn.Dropout(dropout),
+        )
+        self.adaln = nn.Sequential(nn.SiLU(), nn.Linear(dim, 9 * dim))
+
+    def forward(self, x: Tensor, modulation: tuple[Tensor, ...], kv: tuple[Tensor, Tensor]) -> Tensor:
+        """x (B, H, D) action tokens; modulation = split_modulation(adaln(c)), batch B or 1; kv per-head context
+        keys/values."""
+        sh1, sc1, g1, sh2, sc2, g2, sh3, sc3, g3 = modulation
+        x = torch.addcmul(x, g1, self.self_attn(torch.addcmul(sh1, self.norm1(x), sc1)))
+        x = torch.addcmul(x, g2, self.cross_attn(torch.addcmul(sh2, self.norm2(x), sc2), kv))
+        x = torch.addcmul(x, g3, self.mlp(torch.addcmul(sh3, self.norm3(x), sc3)))
+        return x
+
+
+class DiTX(nn.Module):
+    """DiT-X velocity network f(x_t, t, dt | context)."""
+
+    def __init__(self, config: ManiFlowConfig, action_dim: int, context_dim: int, context_len: int):
+        super().__init__()
+        d = config.dit_hidden_dim
+        self.action_in = nn.Linear(action_dim, d)
+        self.action_pos = nn.Parameter(torch.zeros(1, config.horizon, d))
+        self.context_in = nn.Linear(context_dim, d)
+        self.context_pos = nn.Parameter(torch.zeros(1, context_len, d))  # zero-init (ManiFlow)
+        self.t_embed = TimeEmbedding(config.time_freq_dim, config.time_embed_hidden_dim, d)
+        self.dt_embed = TimeEmbedding(config.time_freq_dim, config.time_embed_hidden_dim, d)
+        self.cond_proj = nn.Linear(2 * d, d)
+        self.blocks = nn.ModuleList(
+            DiTXBlock(d, config.dit_num_heads, config.dit_mlp_ratio, config.dropout)
+            for _ in range(config.dit_num_layers)
+        )
+        self.out_norm = nn.RMSNorm(d, eps=1e-6)
+        self.out_mlp = nn.Sequential(nn.Linear(d, d), nn.GELU(approximate="tanh"), nn.Linear(d, action_dim))
+        self._init_weights()
+
+    def _init_weights(self) -> None:
+        for m in self.modules():
+            if isinstance(m, nn.Linear):
+                nn.init.xavier_uniform_(m.weight)
+                nn.init.zeros_(m.bias)
+        nn.init.normal_(self.action_pos, std=0.02)
+        for blk in self.blocks:  # AdaLN-Zero
+            nn.init.zeros_(blk.adaln[-1].weight)
+            nn.init.zeros_(blk.adaln[-1].bias)
+        nn.init.zeros_(self.out_mlp[-1].weight)  # zero-init output layer
+        nn.init.zeros_(self.out_mlp[-1].bias)
+
+    def encode_context(self, context: Tensor) -> list[tuple[Tensor, Tensor]]:
+        """(B, L, context_dim) observation tokens -> per-block cross-attention keys/values."""
+        ctx = self.context_in(context) + self.context_pos
+        return [blk.cross_attn.kv(ctx) for blk in self.blocks]
+
+    def modulations(self, t: Tensor, dt: Tensor) -> list[tuple[Tensor, ...]]:
+        """AdaLN-Zero (shift, 1 + scale, gate) x 3 of every block, (B, 1, D) each, from c = proj([emb(t), emb(dt)])."""
+        c = self.cond_proj(torch.cat([self.t_embed(t), self.dt_embed(dt)], dim=-1))
+        return [split_modulation(blk.adaln(c)) for blk in self.blocks]
+
+    def conditioning_parameters(self) -> list[Tensor]:
+        """The parameters the modulations depend on (used to invalidate the inference cache)."""
+        mods = [self.t_embed, self.dt_embed, self.cond_proj, *(blk.adaln for blk in self.blocks)]
+        return [p for m in mods for p in m.parameters()]
+
+    def forward(
+        self,
+        x: Tensor,
+        t: Tensor,
+        dt: Tensor,
+        context_kv: list[tuple[Tensor, Tensor]],
+        modulations: list[tuple[Tensor, ...]] | None = None,
+    ) -> Tensor:
+        """x (B, H, A) noisy normalised chunk, t and dt (B,) -> velocity (B, H, A).
+
+        `modulations` (from `self.modulations(t, dt)`, batch B or 1) may be passed to skip their computation.
+        """
+        h = self.action_in(x) + self.action_pos
+        if modulations is None:
+            modulations = self.modulations(t, dt)
+        for blk, kv, mod in zip(self.blocks, context_kv, modulations, strict=True):
+            h = blk(h, mod, kv)
+        return self.out_mlp(self.out_norm(h))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Network.
+# --------------------------------------------------------------------------------------------------------------
+
+
+class ManiFlowModel(nn.Module):
+    """Point encoder + state MLP -> (B, To * N, Dp + Ds) context -> DiT-X."""
+
+    def __init__(self, config: ManiFlowConfig):
+        super().__init__()
+        self.config = config
+        state_dim = int(config.input_features[OBS_STATE].shape[0])
+        action_dim = int(config.output_features[ACTION].shape[0])
+        self.point_encoder = PointEncoder(
+            config.point_channels, config.point_encoder_hidden_dims, config.point_feature_dim
+        )
+        self.state_encoder = StateEncoder(state_dim, config.state_feature_dim)
+        self.dit = DiTX(
+            config,
+            action_dim=action_dim,
+            context_dim=config.point_feature_dim + config.state_feature_dim,
+            context_len=config.n_obs_steps * config.num_points,
+        )
+
+    def encode_observations(self, point_cloud: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
+        """point_cloud (B, To, N, C), state (B, To, S) -> point tokens (B, To, N, Dp), state feats (B, To, Ds)."""
+        return self.point_encoder(point_cloud), self.state_encoder(state)
+
+    @staticmethod
+    def build_context(point_feats: Tensor, state_feats: Tensor) -> Tensor:
+        """Concatenate each step's state feature to every point token of that step: (B, To * N, Dp + Ds)."""
+        b, to, n, _ = point_feats.shape
+        tokens = torch.cat([point_feats, state_feats[:, :, None].expand(-1, -1, n, -1)], dim=-1)
+        return tokens.reshape(b, to * n, tokens.shape[-1])
+
+    def observation_context(
+        self, point_cloud: Tensor, state: Tensor, need_future: bool = False
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """Context tokens for DiT-X plus intermediate features (subclasses add theirs)."""
+        point_feats, state_feats = self.encode_observations(point_cloud, state)
+        return self.build_context(point_feats, state_feats), {"h_cur": point_feats[:, -1]}
+
+    def schedule_modulations(
+        self, num_steps: int, device: torch.device, dtype: torch.dtype
+    ) -> list[list[tuple[Tensor, ...]]]:
+        """AdaLN modulations of the Euler schedule (t_i = i/N, dt = 1/N), batch 1, for every step.
+
+        They depend only on the schedule and on the conditioning weights, so outside autograd they are cached
+        and reused across calls (at batch 1 their weights are ~40% of what a flow step reads). The cache key
+        holds the in-place version counters of those weights, so optimiser steps, EMA updates and
+        `load_state_dict` invalidate it.
+        """
+        params = self.dit.conditioning_parameters()
+        key = (num_steps, device, dtype, tuple(p._version for p in params), tuple(p.data_ptr() for p in params))
+        cached = getattr(self, "_modulation_cache", None)
+        if cached is not None and cached[0] == key and not torch.is_grad_enabled():
+            return cached[1]
+        step = 1.0 / num_steps
+        dt = torch.full((1,), step, device=device, dtype=dtype)
+        mods = [
+            [tuple(m.contiguous() for m in block_mods)
+             for block_mods in self.dit.modulations(torch.full((1,), i * step, device=device, dtype=dtype), dt)]
+            for i in range(num_steps)
+        ]
+        if not torch.is_grad_enabled():
+            self._modulation_cache = (key, mods)
+        return mods
+
+    def sample(self, context: Tensor, noise: Tensor, num_steps: int) -> Tensor:
+        """Euler integration from noise (t = 0) to data (t = 1): x += (1/N) f(x, i/N, 1/N)."""
+        kv = self.dit.encode_context(context)
+        mods = self.schedule_modulations(num_steps, noise.device, noise.dtype)
+        x = noise
+        b = x.shape[0]
+        step = 1.0 / num_steps
+        dt = torch.full((b,), step, device=x.device, dtype=x.dtype)
+        for i in range(num_steps):
+            t = torch.full((b,), i * step, device=x.device, dtype=x.dtype)
+            x = x + step * self.dit(x, t, dt, kv, modulations=mods[i])
+        return x
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Policy.
+# --------------------------------------------------------------------------------------------------------------
+
+
+class ManiFlowPolicy(PreTrainedPolicy):
+    """ManiFlow policy (consistency flow matching with an EMA teacher, 1-2 step Euler inference).
+
+    `self.model` is trained; `self.ema_model` is its EMA copy (updated in `update()`, which lerobot-train calls
+    after every optimiser step), the consistency teacher and, by default, the model used for inference. Both are
+    saved in `model.safetensors`.
+    """
+
+    config_class = ManiFlowConfig
+    name = "maniflow"
+
+    def __init__(self, config: ManiFlowConfig, **kwargs):
+        """
+        Args:
+            config: Policy configuration; `input_features` / `output_features` must be set (`make_policy` does).
+            kwargs: `dataset_stats` / `dataset_meta` from `make_policy`; unused (normalisation lives in the
+                processors).
+        """
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        self.model = self._make_model(config)
+        self.ema_model = copy.deepcopy(self.model)
+        self.ema_model.requires_grad_(False)
+        self.ema_model.eval()
+        # Number of EMA updates done so far (k of the decay schedule); saved so that resuming continues it.
+        self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
+        self._queues: dict[str, deque] = {}
+        self.reset()
+
+    def _make_model(self, config: ManiFlowConfig) -> ManiFlowModel:
+        return ManiFlowModel(config)
+
+    # ---- LeRobot API ----------------------------------------------------------------------------------------
+
+    def get_optim_params(self):
+        return self.model.parameters()
+
+    def reset(self):
+        """Clear the observation and action queues; call on env.reset()."""
+        self._queues = {
+            OBS_POINT_CLOUD: deque(maxlen=self.config.n_obs_steps),
+            OBS_STATE: deque(maxlen=self.config.n_obs_steps),
+            ACTION: deque(maxlen=self.config.n_action_steps),
+        }
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        self.ema_model.eval()  # the EMA copy never uses dropout
+        return self
+
+    def ema_decay(self, step: int) -> float:
+        """clip(1 - (1 + k) ** -power, 0, max_decay) at update k (0-based), as ManiFlow / diffusers EMAModel."""
+        return float(min(max(1.0 - (1.0 + step) ** -self.config.ema_power, 0.0), self.config.ema_max_decay))
+
+    @torch.no_grad()
+    def update(self):
+        """EMA update, called by lerobot-train after each optimiser step: ema = d * ema + (1 - d) * online."""
+        decay = self.ema_decay(int(self.ema_step.item()))
+        ema_params = list(self.ema_model.parameters())
+        params = [p.detach() for p in self.model.parameters()]
+        torch._foreach_lerp_(ema_params, params, 1.0 - decay)
+        for b_ema, b in zip(self.ema_model.buffers(), self.model.buffers(), strict=True):
+            b_ema.copy_(b)
+        self.ema_step += 1
+
+    # ---- Inputs ---------------------------------------------------------------------------------------------
+
+    def _points(self, pc: Tensor) -> Tensor:
+        """(..., N * C) flat (dataset layout) or (..., N, C) -> (..., N, C)."""
+        n, c = self.config.num_points, self.config.point_channels
+        if pc.shape[-1] == n * c and not (pc.ndim >= 2 and tuple(pc.shape[-2:]) == (n, c)):
+            pc = pc.reshape(*pc.shape[:-1], n, c)
+        return pc
+
+    def _observation_tensors(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """Point cloud (B, To, N, C) and state (B, To, S); single-step inputs are repeated To times."""
+        to = self.config.n_obs_steps
+        pc, state = self._points(batch[OBS_POINT_CLOUD]), batch[OBS_STATE]
+        if pc.ndim == 2:  # (N, C), unbatched
+            pc = pc[None]
+        if pc.ndim == 3:  # (B, N, C), no time axis
+            pc = pc[:, None].expand(-1, to, -1, -1)
+        if state.ndim == 1:
+            state = state[None]
+        if state.ndim == 2:
+            state = state[:, None].expand(-1, to, -1)
+        if pc.ndim != 4 or pc.shape[1] != to or state.ndim != 3 or state.shape[1] != to:
+            raise ValueError(
+                f"Expected '{OBS_POINT_CLOUD}' (B, {to}, N, C) and '{OBS_STATE}' (B, {to}, S); got "
+                f"{tuple(batch[OBS_POINT_CLOUD].shape)} and {tuple(batch[OBS_STATE].shape)}."
+            )
+        return pc, state
+
+    # ---- Inference ------------------------------------------------------------------------------------------
+
+    def _inference_model(self) -> ManiFlowModel:
+        return self.ema_model if self.config.use_ema_for_inference else self.model
+
+    @torch.no_grad()
+    def generate_actions(
+        self,
+        batch: dict[str, Tensor],
+        noise: Tensor | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """Full normalised chunk (B, horizon, A) from observations (B, To, ...) or (B, ...)."""
+        model = self._inference_model()
+        pc, state = self._observation_tensors(batch)
+        context, _ = model.observation_context(pc, state, need_future=False)
+        b = context.shape[0]
+        action_dim = int(self.config.output_features[ACTION].shape[0])
+        shape = (b, self.config.horizon, action_dim)
+        if noise is None:
+            noise = torch.randn(shape, generator=generator, device=context.device, dtype=context.dtype)
+        elif tuple(noise.shape) != shape:
+            raise ValueError(f"`noise` must have shape {shape}. Got {tuple(noise.shape)}.")
+        return model.sample(context, noise.to(device=context.device, dtype=context.dtype),
+                            self.config.num_inference_steps)
+
+    @torch.no_grad()
+    def predict_action_chunk(
+        self,
+        batch: dict[str, Tensor],
+        noise: Tensor | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """The `n_action_steps` actions to execute from the current step, (B, n_action_steps, A), normalised.
+
+        Uses the observation queues when `select_action` filled them, else the batch as given (B, To, ...).
+        """
+        if any(len(self._queues[k]) > 0 for k in (OBS_POINT_CLOUD, OBS_STATE)):
+            batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in (OBS_POINT_CLOUD, OBS_STATE)}
+        actions = self.generate_actions(batch, noise=noise, generator=generator)
+        start = self.config.n_obs_steps - 1
+        return actions[:, start : start + self.config.n_action_steps]
+
+    @torch.no_grad()
+    def select_action(
+        self,
+        batch: dict[str, Tensor],
+        noise: Tensor | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """One action (B, A) per call; a new chunk is generated every `n_action_steps` calls. Needs only the
+        current `observation.point_cloud` and `observation.state` (teacher keys are never read here)."""
+        obs = {OBS_POINT_CLOUD: self._points(batch[OBS_POINT_CLOUD]), OBS_STATE: batch[OBS_STATE]}
+        for key, unbatched_ndim in ((OBS_POINT_CLOUD, 2), (OBS_STATE, 1)):
+            if obs[key].ndim == unbatched_ndim:
+                obs[key] = obs[key][None]
+        self._queues = populate_queues(self._queues, obs)
+        if len(self._queues[ACTION]) == 0:
+            actions = self.predict_action_chunk(obs, noise=noise, generator=generator)
+            self._queues[ACTION].extend(actions.transpose(0, 1))
+        return self._queues[ACTION].popleft()
+
+    # ---- Training -------------------------------------------------------------------------------------------
+
+    def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
+        """Consistency flow-matching loss L_FM + L_CT; returns (loss, logging dict of floats)."""
+        if reduction != "mean":
+            raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
+        pc, state = self._observation_tensors(batch)
+        context, _ = self.model.observation_context(pc, state, need_future=False)
+        loss, info = self.flow_loss(context, batch)
+        info["loss"] = loss.item()
+        return loss, info
+
+    def flow_loss(self, context: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """ManiFlow's objective on a shared context (B, L, Dc) (the encoder runs once, with gradients).
+
+        The first B - int((1 - flow_batch_ratio) B) samples: flow matching, t ~ scale * Beta(a, b), dt = 0,
+        target x1 - x0. The rest: consistency, t ~ U{0, 1/K, ..., (K-1)/K}, dt ~ U(0, 1), t' = min(t + dt, 1);
+        the EMA DiT (online context, no gradient) gives v^ = f_ema(x_t', t', dt), x1^ = x_t' + (1 - t') v^,
+        target (x1^ - x_t) / (1 - t).
+        """
+        cfg = self.config
+        x1 = batch[ACTION]  # (B, H, A), normalised
+        if x1.ndim != 3 or x1.shape[1] != cfg.horizon:
+            raise ValueError(f"Expected '{ACTION}' (B, {cfg.horizon}, A). Got {tuple(x1.shape)}.")
+        b = x1.shape[0]
+        n_ct = int(b * (1.0 - cfg.flow_batch_ratio))
+        n_fm = b - n_ct
+        dev, dtype = x1.device, x1.dtype
+
+        x0 = torch.randn_like(x1)
+        beta = torch.distributions.Beta(
+            torch.tensor(cfg.flow_t_beta_a, device=dev), torch.tensor(cfg.flow_t_beta_b, device=dev)
+        )
+        t_fm = cfg.flow_t_scale * beta.sample((n_fm,)).to(dtype)
+        t_ct = torch.randint(0, cfg.consistency_t_bins, (n_ct,), device=dev).to(dtype) / cfg.consistency_t_bins
+        dt_ct = torch.rand(n_ct, device=dev, dtype=dtype)
+        t = torch.cat([t_fm, t_ct])
+        dt = torch.cat([torch.zeros_like(t_fm), dt_ct])
+        x_t = (1 - t[:, None, None]) * x0 + t[:, None, None] * x1
+
+        v = self.model.dit(x_t, t, dt, self.model.dit.encode_context(context))
+
+        mask = None
+        if cfg.do_mask_loss_for_padding and "action_is_pad" in batch:
+            mask = (~batch["action_is_pad"]).to(dtype)[:, :, None].expand_as(x1)
+
+        def mse(pred: Tensor, target: Tensor, sl: slice) -> Tensor:
+            err = (pred - target) ** 2
+            if mask is None:
+                return err.mean()
+            m = mask[sl]
+            return (err * m).sum() / m.sum().clamp_min(1.0)
+
+        loss_fm = mse(v[:n_fm], x1[:n_fm] - x0[:n_fm], slice(0, n_fm)) if n_fm > 0 else x1.new_zeros(())
+        if n_ct > 0:
+            with torch.no_grad():
+                x0c, x1c = x0[n_fm:], x1[n_fm:]
+                t2 = (t_ct + dt_ct).clamp(max=1.0)
+                x_t2 = (1 - t2[:, None, None]) * x0c + t2[:, None, None] * x1c
+                ema_dit = self.ema_model.dit
+                v_hat = ema_dit(x_t2, t2, dt_ct, ema_dit.encode_context(context[n_fm:].detach()))
+                x1_hat = x_t2 + (1 - t2[:, None, None]) * v_hat
+                target_ct = (x1_hat - x_t[n_fm:]) / (1 - t_ct[:, None, None])
+            loss_ct = mse(v[n_fm:], target_ct, slice(n_fm, b))
+        else:
+            loss_ct = x1.new_zeros(())
+        loss = loss_fm + loss_ct
+        return loss, {"loss_fm": loss_fm.item(), "loss_ct": loss_ct.item()}
