@@ -12,7 +12,13 @@ Observation (copies, never views into simulator memory):
 Reward: task progress d / 5 (deepest milestone so far, monotone), so LeRobot's
 `avg_max_reward` is the Task Progress Score. `terminated` and `info["is_success"]` at M5.
 Privileged information (milestone flags, object poses, camera pose) only goes into `info`.
-Seeding: every random draw comes from `self.np_random`, seeded by `reset(seed=...)`.
+Conditions: "clean" has no occluder; "stage" and "random" place the benchmark occluder at reset
+and at the Stage transitions / Random-time triggers (`envs/occlusion.py`); `info["occlusion"]`
+reports the current event and the target's per-step visibility, and under "random"
+`info["cvg"]` at episode end holds the events' CVG (`envs/visibility.py`). The visibility
+renders use their own GL context and never touch observations, actions or dynamics.
+Seeding: every random draw (task layout, then the occlusion schedule) comes from
+`self.np_random`, seeded by `reset(seed=...)`.
 """
 
 from __future__ import annotations
