@@ -18,7 +18,7 @@ from lerobot_bavo.envs.tasks import make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.sim.kinematics import ArmKinematics
-from _helpers import milestone_flags
+from _helpers import EditedScene, milestone_flags
 
 MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
@@ -42,13 +42,11 @@ def _rot(x_axis, y_axis) -> np.ndarray:
     return np.column_stack([x, y, np.cross(x, y)])
 
 
-class Scene:
+class Scene(EditedScene):
     """An env whose MjData is edited by hand, with positions given in the platform frame."""
 
     def __init__(self, env: BavoEnv, seed: int = 3):
-        self.env = env
-        env.reset(seed=seed)
-        self.m, self.d, self.task = env.model, env.data, env.task
+        super().__init__(env, seed)
         self.P = self.d.body("platform").xpos.copy()
         self.R = self.d.body("platform").xmat.reshape(3, 3).copy()
         size = lambda n: self.m.geom_size[self.m.geom(n).id].copy()  # noqa: E731
@@ -119,14 +117,6 @@ class Scene:
                 out.add(self.m.geom(g1).name)
         return out
 
-    def evaluate(self) -> dict[str, bool]:
-        mujoco.mj_forward(self.m, self.d)
-        return {k: bool(v) for k, v in self.task.evaluate(self.m, self.d).items()}
-
-    def settle(self, n: int) -> dict[str, bool]:
-        for _ in range(n):
-            mujoco.mj_step(self.m, self.d)
-        return self.evaluate()
 
 
 @pytest.fixture(scope="module")

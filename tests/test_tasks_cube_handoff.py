@@ -16,7 +16,7 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import TASK_NAMES, make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.sim.kinematics import ArmKinematics
-from _helpers import milestone_flags
+from _helpers import EditedScene, milestone_flags
 
 MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
@@ -41,16 +41,8 @@ DOWN_CLOSE_Y = _rot([0, 0, -1], [0, -1, 0])
 DOWN_CLOSE_X = _rot([0, 0, -1], [1, 0, 0])  # pointing down, fingers close along world x
 
 
-class Scene:
+class Scene(EditedScene):
     """An env whose MjData is edited by hand."""
-
-    def __init__(self, env: BavoEnv, seed: int = 0):
-        self.env = env
-        env.reset(seed=seed)
-        self.m, self.d, self.task = env.model, env.data, env.task
-
-    def qadr(self, joint: str) -> int:
-        return int(self.m.jnt_qposadr[self.m.joint(joint).id])
 
     def place_gripper(self, side: str, pos, rot, opening: float) -> np.ndarray:
         kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIP_JOINTS], f"{side}_gripper_center", MANIP_HOME)
@@ -100,14 +92,6 @@ class Scene:
                 out.add(self.m.geom(g2 if g1 == cube else g1).name)
         return out
 
-    def evaluate(self) -> dict[str, bool]:
-        mujoco.mj_forward(self.m, self.d)
-        return {k: bool(v) for k, v in self.task.evaluate(self.m, self.d).items()}
-
-    def settle(self, n: int) -> dict[str, bool]:
-        for _ in range(n):
-            mujoco.mj_step(self.m, self.d)
-        return self.evaluate()
 
 
 @pytest.fixture(scope="module")
