@@ -375,3 +375,11 @@ def test_recorder_annotations_under_other_conditions(condition):
         assert cols[S.ANN_EVENT][0, 0] == 0 and cols[S.ANN_EVENT_START][0, 0] == 1.0
         assert cols[S.ANN_TARGET][0, 0] == 0 and 0.0 <= cols[S.ANN_VISIBILITY][0, 0] <= 0.2
         assert cols[S.ANN_ACTIVE][0, 0] == 1.0  # the expert starts recovering the view at once
+
+
+def test_video_coverage_check_catches_dropped_frames(dataset_root):
+    """The post-commit check compares each episode's video span with its frame count (STEPS at 25 fps)."""
+    collector = Collector(_config(dataset_root, episodes=2))
+    collector._verify_videos(0, [{"seed": 0, "length": STEPS}, {"seed": 1, "length": STEPS}])
+    with pytest.raises(CollectionError, match=r"episode 1 \(seed 1\): video covers 1\.200 s for 31 frames"):
+        collector._verify_videos(1, [{"seed": 1, "length": STEPS + 1}])
