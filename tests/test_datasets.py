@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, CollectionError, Collector, collect
@@ -383,3 +384,28 @@ def test_video_coverage_check_catches_dropped_frames(dataset_root):
     collector._verify_videos(0, [{"seed": 0, "length": STEPS}, {"seed": 1, "length": STEPS}])
     with pytest.raises(CollectionError, match=r"episode 1 \(seed 1\): video covers 1\.200 s for 31 frames"):
         collector._verify_videos(1, [{"seed": 1, "length": STEPS + 1}])
+
+
+def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root, tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_bavo.datasets.views import make_view, removed_features
+
+    src = LeRobotDataset(REPO, root=dataset_root, video_backend="pyav")
+    bookkeeping = {"timestamp", "frame_index", "episode_index", "index", "task_index"}
+    for view, keep in (("points", {S.OBS_STATE, S.ACTION, S.OBS_POINT_CLOUD, *S.TEACHER_KEYS}),
+                       ("images", {S.OBS_STATE, S.ACTION, S.OBS_IMAGE})):
+        out = make_view(dataset_root, view, output_root=tmp_path / view)
+        assert out.repo_id == f"{REPO}_{view}"
+        assert set(out.meta.features) - bookkeeping == keep
+        reloaded = LeRobotDataset(out.repo_id, root=tmp_path / view, video_backend="pyav")
+        assert reloaded.meta.total_episodes == 2 and len(reloaded) == len(src)
+        a, b = reloaded[STEPS + 3], src[STEPS + 3]  # a frame of the second episode
+        for key in keep - {S.OBS_IMAGE}:
+            torch.testing.assert_close(a[key], b[key])
+        with pytest.raises(FileExistsError, match="exists"):
+            make_view(dataset_root, view, output_root=tmp_path / view)
+    with pytest.raises(ValueError, match="unknown view 'depth'"):
+        removed_features(src.meta.features, "depth")
+    with pytest.raises(ValueError, match="needed by the 'points' view"):
+        removed_features({S.OBS_STATE: {}, S.ACTION: {}}, "points")
