@@ -403,6 +403,11 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
         a, b = reloaded[STEPS + 3], src[STEPS + 3]  # a frame of the second episode
         for key in keep - {S.OBS_IMAGE}:
             torch.testing.assert_close(a[key], b[key])
+        src_stats = json.loads((dataset_root / "meta" / "stats.json").read_text())
+        out_stats = json.loads((tmp_path / view / "meta" / "stats.json").read_text())
+        assert out_stats[S.OBS_STATE] == src_stats[S.OBS_STATE]
+        if view == "points":  # per-channel point-cloud stats survive the copy
+            assert out_stats[S.OBS_POINT_CLOUD] == src_stats[S.OBS_POINT_CLOUD]
         with pytest.raises(FileExistsError, match="exists"):
             make_view(dataset_root, view, output_root=tmp_path / view)
     with pytest.raises(ValueError, match="unknown view 'depth'"):
