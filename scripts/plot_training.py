@@ -90,10 +90,10 @@ def main(argv: list[str] | None = None) -> None:
     rows = (len(keys) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
     for ax, key in zip(axes.flat, keys):
-        for name, series in runs.items():
-            if key in series:
+        for i, (name, series) in enumerate(runs.items()):
+            if key in series:  # one colour per run across panels, also where only some runs log the key
                 steps, values = zip(*series[key])
-                ax.plot(steps, values, label=name, lw=1.2)
+                ax.plot(steps, values, label=name, lw=1.2, color=f"C{i}")
         ax.set_title(key)
         ax.set_xlabel("training step")
         ax.set_yscale("log")
