@@ -8,7 +8,7 @@
 Each value is the average over the last `log_freq` steps. The step counter is printed rounded
 (`1K`), so the exact step of the i-th line is recovered as `(i + 1) * log_freq`, plus the step a
 resumed run started from; a line whose rounded counter disagrees with that raises an error instead
-of silently mislabeling the curve. Every `loss*` key found is plotted (total, ManiFlow's flow and
+of silently mislabeling the curve. Every `loss*` or `*_loss` key found is plotted (total, ManiFlow's flow and
 consistency parts, A-FAR's relational terms), one panel per key, one line per run.
 
     python scripts/plot_training.py --log-freq 25 --output docs/results/training_cube_handoff.png \\
@@ -85,7 +85,8 @@ def main(argv: list[str] | None = None) -> None:
         if not sep:
             parser.error(f"expected NAME=LOGFILE, got {spec!r}")
         runs[name] = parse_log(Path(path), args.log_freq)
-    keys = sorted({k for s in runs.values() for k in s if k.startswith("loss")}, key=lambda k: (k != "loss", k))
+    keys = sorted({k for s in runs.values() for k in s if k.startswith("loss") or k.endswith("_loss")},
+                  key=lambda k: (k != "loss", k))
     cols = min(3, len(keys))
     rows = (len(keys) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
