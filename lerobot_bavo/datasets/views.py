@@ -23,21 +23,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lerobot.utils.constants import DEFAULT_FEATURES  # bookkeeping columns every LeRobot dataset has
+
 from lerobot_bavo.datasets import schema as S
 
 VIEW_KEEPS = {
     "points": (S.OBS_STATE, S.ACTION, S.OBS_POINT_CLOUD, *S.TEACHER_KEYS),
     "images": (S.OBS_STATE, S.ACTION, S.OBS_IMAGE),
 }
-# Bookkeeping columns every LeRobot dataset has; never removed.
-_LEROBOT_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
 
 def removed_features(features: dict, view: str) -> list[str]:
     """The feature names `view` drops from a dataset with these `features` (info.json's)."""
     if view not in VIEW_KEEPS:
         raise ValueError(f"unknown view {view!r}; expected one of {sorted(VIEW_KEEPS)}")
-    keep = set(VIEW_KEEPS[view]) | set(_LEROBOT_COLUMNS)
+    keep = set(VIEW_KEEPS[view]) | set(DEFAULT_FEATURES)
     missing = [k for k in VIEW_KEEPS[view] if k not in features]
     if missing:
         raise ValueError(f"the dataset has no {missing} (needed by the {view!r} view); is it a BAVO dataset "
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     ds = make_view(args.root, args.view, args.repo_id, args.output_root)
     print(f"wrote {ds.root} (repo id {ds.repo_id}): {ds.meta.total_episodes} episodes, {ds.meta.total_frames} frames, "
-          f"features {[k for k in ds.meta.features if k not in _LEROBOT_COLUMNS]}")
+          f"features {[k for k in ds.meta.features if k not in DEFAULT_FEATURES]}")
 
 
 if __name__ == "__main__":
