@@ -80,7 +80,7 @@ def test_round_trip_with_delta_timestamps(dataset_root):
     }
     ds = load_bavo_dataset(REPO, root=dataset_root, n_points=32, delta_timestamps=delta)
     assert ds.num_episodes == 2 and len(ds) == 2 * STEPS and ds.fps == 25
-    assert ds.meta.info.features.keys() == S.build_features(SETTINGS).keys() | {
+    assert ds.meta.info.features.keys() == S.build_features(SETTINGS, env_state_dim=14).keys() | {
         "timestamp", "frame_index", "episode_index", "index", "task_index"}
 
     item = ds[0]  # first frame of episode 0: the previous observation is padding
@@ -104,6 +104,10 @@ def test_round_trip_with_delta_timestamps(dataset_root):
     for key in (S.OBS_STATE, S.OBS_POINT_CLOUD, S.TEACHER_Z0, S.TEACHER_ZF):
         np.testing.assert_allclose(item[key][-1].numpy(), cols[key][t], atol=1e-6)
         np.testing.assert_allclose(item[key][0].numpy(), cols[key][t - 1], atol=1e-6)
+    # the privileged object poses (cube, plate: xyz + wxyz each) are those of the simulator at that frame
+    np.testing.assert_allclose(ds.hf_dataset[STEPS + t][S.OBS_ENV_STATE], cols[S.OBS_ENV_STATE][t], atol=1e-6)
+    assert cols[S.OBS_ENV_STATE].shape == (STEPS, 14)
+    np.testing.assert_allclose(np.linalg.norm(cols[S.OBS_ENV_STATE][:, 3:7], axis=1), 1.0, atol=1e-5)
     np.testing.assert_allclose(item[S.ACTION].numpy(), cols[S.ACTION][t:t + 16], atol=1e-6)
     raw = ds.hf_dataset[STEPS + t]
     assert raw[S.ANN_SEED] == 1 and raw[S.ANN_EVENT] == cols[S.ANN_EVENT][t, 0]
@@ -394,7 +398,8 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
     src = LeRobotDataset(REPO, root=dataset_root, video_backend="pyav")
     bookkeeping = {"timestamp", "frame_index", "episode_index", "index", "task_index"}
     for view, keep in (("points", {S.OBS_STATE, S.ACTION, S.OBS_POINT_CLOUD, *S.TEACHER_KEYS}),
-                       ("images", {S.OBS_STATE, S.ACTION, S.OBS_IMAGE})):
+                       ("images", {S.OBS_STATE, S.ACTION, S.OBS_IMAGE}),
+                       ("state", {S.OBS_STATE, S.ACTION, S.OBS_ENV_STATE})):
         out = make_view(dataset_root, view, output_root=tmp_path / view)
         assert out.repo_id == f"{REPO}_{view}"
         assert set(out.meta.features) - bookkeeping == keep
@@ -414,3 +419,38 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
         removed_features(src.meta.features, "depth")
     with pytest.raises(ValueError, match="needed by the 'points' view"):
         removed_features({S.OBS_STATE: {}, S.ACTION: {}}, "points")
+
+
+def test_point_cloud_normalisation_is_independent_of_lerobot_edits(dataset_root, tmp_path):
+    """After LeRobot's delete_episodes the point-cloud stats are rebuilt element-wise (one range per point
+    slot); the policies' processor must still normalise every point per channel, with the exact range of the
+    remaining frames, and independently of point order."""
+    from types import SimpleNamespace
+
+    from lerobot.datasets.dataset_tools import delete_episodes
+    from lerobot.policies.factory import make_policy, make_policy_config, make_pre_post_processors
+
+    import lerobot_bavo.policies  # noqa: F401
+
+    ds = load_bavo_dataset(REPO, root=dataset_root)
+    delete_episodes(ds, episode_indices=[0], output_dir=tmp_path / "deleted", repo_id="tester/deleted")
+    edited = load_bavo_dataset("tester/deleted", root=tmp_path / "deleted")
+    n = SETTINGS.n_points
+    clouds = np.stack([np.asarray(edited.hf_dataset[i][S.OBS_POINT_CLOUD]) for i in range(len(edited))])
+    clouds = clouds.reshape(-1, n, 6)
+    lo, hi = clouds.reshape(-1, 6).min(0), clouds.reshape(-1, 6).max(0)
+    edited_min = np.asarray(edited.meta.stats[S.OBS_POINT_CLOUD]["min"]).reshape(n, 6)
+    assert not np.allclose(edited_min, lo[None])  # the edit really left per-slot ranges
+
+    cfg = make_policy_config("maniflow", preset="cpu", device="cpu", dit_hidden_dim=32, dit_num_layers=1,
+                             dit_num_heads=2)
+    make_policy(cfg, ds_meta=SimpleNamespace(features=edited.meta.features, stats=edited.meta.stats))
+    pre, _ = make_pre_post_processors(cfg, dataset_stats=edited.meta.stats)
+    frame = torch.as_tensor(clouds[5])
+    perm = torch.randperm(n, generator=torch.Generator().manual_seed(0))
+    state = torch.zeros(21)
+    out = pre({S.OBS_POINT_CLOUD: frame.reshape(-1), S.OBS_STATE: state})[S.OBS_POINT_CLOUD].reshape(n, 6)
+    out_perm = pre({S.OBS_POINT_CLOUD: frame[perm].reshape(-1), S.OBS_STATE: state})[S.OBS_POINT_CLOUD]
+    expected = 2 * (frame.numpy() - lo) / np.maximum(hi - lo, 1e-8) - 1
+    np.testing.assert_allclose(out.numpy(), expected, atol=1e-5)
+    torch.testing.assert_close(out_perm.reshape(n, 6), out[perm])

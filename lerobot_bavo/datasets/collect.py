@@ -261,7 +261,10 @@ class Collector:
                 raise CollectionError(f"{self.root} exists and is not a LeRobot dataset; choose another --root")
             if self.root.exists():
                 shutil.rmtree(self.root)
-            features = S.build_features(self.cfg.settings, use_videos=self.cfg.use_videos)
+            from lerobot_bavo.envs.tasks import environment_state_dim
+
+            features = S.build_features(self.cfg.settings, use_videos=self.cfg.use_videos,
+                                        env_state_dim=environment_state_dim(self.cfg.task))
             ds = LeRobotDataset.create(self.cfg.repo_id, S.FPS, features, root=self.root, robot_type="bavo_av_aloha",
                                        use_videos=self.cfg.use_videos)
             ds.finalize()

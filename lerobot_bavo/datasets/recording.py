@@ -27,6 +27,7 @@ class EpisodeRecord:
 
     Dataset arrays: state, action (T, 21) float32; rgb (T, H, W, 3) uint8; point_cloud (T, N, 6)
     float32; point_pixels (T, N, 2) int32; camera_pose (T, 4, 4) float64 (T_B<-C, OpenCV axes);
+    environment_state (T, 7 K) float32 (object poses, privileged);
     progress, occlusion_event, occlusion_target (T,) int64; event_start, occlusion_active,
     visibility (T,) float32 (see `schema` for their meaning).
     Privileged (teacher only): depth (T, H, W) float32 z-depth (m); body_seg (T, H, W) int16
@@ -45,6 +46,7 @@ class EpisodeRecord:
     point_cloud: np.ndarray
     point_pixels: np.ndarray
     camera_pose: np.ndarray
+    environment_state: np.ndarray
     progress: np.ndarray
     occlusion_event: np.ndarray
     event_start: np.ndarray
@@ -104,7 +106,7 @@ class EpisodeRecorder:
         expert.reset()
         task = env.task
         rows: dict[str, list] = {k: [] for k in (
-            "state", "action", "rgb", "point_cloud", "point_pixels", "camera_pose", "progress", "occlusion_event",
+            "state", "action", "rgb", "point_cloud", "point_pixels", "camera_pose", "environment_state", "progress", "occlusion_event",
             "event_start", "occlusion_active", "occlusion_target", "visibility", "depth", "body_seg", "body_xpos",
             "body_xmat")}
         target_stage = -1
@@ -123,6 +125,7 @@ class EpisodeRecorder:
             rows["point_cloud"].append(obs["point_cloud"])
             rows["point_pixels"].append(obs["point_pixels"])
             rows["camera_pose"].append(np.asarray(info["camera_pose"], dtype=np.float64))
+            rows["environment_state"].append(task.environment_state(env.model, env.data))
             rows["progress"].append(int(info["progress"]))
             occ = info.get("occlusion")
             if occ is None:
@@ -153,6 +156,7 @@ class EpisodeRecorder:
             state=arrays["state"].astype(np.float32), action=arrays["action"].astype(np.float32),
             rgb=arrays["rgb"], point_cloud=arrays["point_cloud"].astype(np.float32),
             point_pixels=arrays["point_pixels"].astype(np.int32), camera_pose=arrays["camera_pose"],
+            environment_state=arrays["environment_state"].astype(np.float32),
             progress=arrays["progress"].astype(np.int64), occlusion_event=arrays["occlusion_event"].astype(np.int64),
             event_start=arrays["event_start"].astype(np.float32),
             occlusion_active=arrays["occlusion_active"].astype(np.float32),
@@ -185,6 +189,7 @@ def episode_frames(record: EpisodeRecord, targets: dict[str, np.ndarray]) -> dic
         S.OBS_POINT_CLOUD: record.point_cloud.reshape(T, n * S.POINT_CHANNELS).astype(np.float32),
         S.OBS_POINT_PIXELS: record.point_pixels.reshape(T, n * S.PIXEL_CHANNELS).astype(np.float32),
         S.OBS_CAMERA_POSE: record.camera_pose.reshape(T, 16).astype(np.float32),
+        S.OBS_ENV_STATE: record.environment_state.reshape(T, -1).astype(np.float32),
         S.TEACHER_Z0: targets["z0"].reshape(T, -1).astype(np.float32),
         S.TEACHER_ZF: targets["zf"].reshape(T, -1).astype(np.float32),
         S.TEACHER_VISIBLE: targets["visible"].reshape(T, n).astype(np.float32),

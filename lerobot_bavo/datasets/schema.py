@@ -15,6 +15,7 @@ Features (N = points per cloud, H x W = active image size; all per frame, 25 fps
 | observation.point_cloud | (N*6,) | float32 | (N, 6) row-major: xyz (m, base frame unless `point_frame="camera"`) + rgb in [0, 1] |
 | observation.point_pixels | (N*2,) | float32 | (N, 2) row-major: source pixel (u = column, v = row) of each point; -1 if the view was empty |
 | observation.camera_pose | (16,) | float32 | T_B<-C (4, 4) row-major, OpenCV camera axes (x right, y down, z forward) |
+| observation.environment_state | (7 K,) | float32 | privileged: the task's K object poses (xyz m, base frame; wxyz quaternion), as AV-ALOHA's `environment_state`; only for privileged-state policies (absent from datasets collected before it existed) |
 | observation.teacher.z0 | (N*3,) | float32 | (N, 3): teacher answer to q0 = (u, v, t, t, t) (see `lerobot_bavo.teacher`) |
 | observation.teacher.zf | (N*3,) | float32 | (N, 3): teacher answer to qF = (u, v, t, t+15, t+15) |
 | observation.teacher.visible | (N,) | float32 | 1 if the queried point is the first surface seen along its ray at t+15, else 0 |
@@ -51,6 +52,8 @@ OBS_IMAGE = "observation.images.active"
 OBS_POINT_CLOUD = "observation.point_cloud"
 OBS_POINT_PIXELS = "observation.point_pixels"
 OBS_CAMERA_POSE = "observation.camera_pose"
+OBS_ENV_STATE = "observation.environment_state"
+POSE_CHANNELS = 7  # xyz + wxyz quaternion per object in `observation.environment_state`
 TEACHER_PREFIX = "observation.teacher"
 TEACHER_Z0 = f"{TEACHER_PREFIX}.z0"
 TEACHER_ZF = f"{TEACHER_PREFIX}.zf"
@@ -113,8 +116,11 @@ class DatasetSettings:
         return asdict(self)
 
 
-def build_features(settings: DatasetSettings, use_videos: bool = True) -> dict[str, dict]:
-    """LeRobot feature dict (for `LeRobotDataset.create`) of a BAVO dataset with these settings."""
+def build_features(settings: DatasetSettings, use_videos: bool = True, env_state_dim: int = 0) -> dict[str, dict]:
+    """LeRobot feature dict (for `LeRobotDataset.create`) of a BAVO dataset with these settings.
+
+    `env_state_dim` > 0 adds `observation.environment_state` (the task's object poses, 7 per object;
+    `lerobot_bavo.envs.tasks.environment_state_dim(task)`)."""
     n = settings.n_points
     names = joint_names()
 
@@ -132,6 +138,7 @@ def build_features(settings: DatasetSettings, use_videos: bool = True) -> dict[s
         OBS_POINT_CLOUD: vec(n * POINT_CHANNELS),
         OBS_POINT_PIXELS: vec(n * PIXEL_CHANNELS),
         OBS_CAMERA_POSE: vec(16),
+        **({OBS_ENV_STATE: vec(env_state_dim)} if env_state_dim else {}),
         TEACHER_Z0: vec(n * TEACHER_CHANNELS),
         TEACHER_ZF: vec(n * TEACHER_CHANNELS),
         TEACHER_VISIBLE: vec(n),
@@ -207,6 +214,11 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
             raise ValueError(f"teacher features must be point-aligned with the same width: {shapes}")
         d = next(iter(shapes.values()))[0] // found
         expected[TEACHER_Z0] = expected[TEACHER_ZF] = ((found * d,), "float32")
+    if OBS_ENV_STATE in features:
+        shape = tuple(features[OBS_ENV_STATE]["shape"])
+        if len(shape) != 1 or shape[0] % POSE_CHANNELS or features[OBS_ENV_STATE]["dtype"] != "float32":
+            raise ValueError(f"feature {OBS_ENV_STATE!r} must be float32 (7 K,) object poses, got "
+                             f"{features[OBS_ENV_STATE]['dtype']} {shape}")
     for key, (shape, dtype) in expected.items():
         if key in TEACHER_KEYS and not require_teacher and key not in features:
             continue

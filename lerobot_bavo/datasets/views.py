@@ -12,7 +12,9 @@ Two views, each written with LeRobot's own `dataset_tools.remove_feature` (so st
 metadata and videos stay consistent):
 
 - `points`: state, action, point cloud and the cached teacher features (`maniflow`, `afar`);
-- `images`: state, action and the active-camera video (`act`, `diffusion`, ...).
+- `images`: state, action and the active-camera video (`act`, `diffusion`, ...);
+- `state`: state, action and the privileged object poses `observation.environment_state`
+  (the privileged-state rung of the failure ladder: `maniflow` without perception).
 
     python -m lerobot_bavo.datasets.views --root outputs/datasets/bavo_cube_handoff --view points
     # -> outputs/datasets/bavo_cube_handoff_points, repo id <repo_id>_points
@@ -30,6 +32,7 @@ from lerobot_bavo.datasets import schema as S
 VIEW_KEEPS = {
     "points": (S.OBS_STATE, S.ACTION, S.OBS_POINT_CLOUD, *S.TEACHER_KEYS),
     "images": (S.OBS_STATE, S.ACTION, S.OBS_IMAGE),
+    "state": (S.OBS_STATE, S.ACTION, S.OBS_ENV_STATE),
 }
 
 
@@ -73,7 +76,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--root", type=Path, required=True, help="the BAVO dataset folder (bavo-collect --root)")
     parser.add_argument("--view", choices=sorted(VIEW_KEEPS), required=True,
-                        help="points: for maniflow/afar; images: for LeRobot's image policies")
+                        help="points: for maniflow/afar; images: for LeRobot's image policies; "
+                             "state: privileged object poses for a state-only maniflow")
     parser.add_argument("--repo-id", default=None, help="the dataset's repo id (default: from its collection record)")
     parser.add_argument("--output-root", type=Path, default=None, help="where the copy goes (default <root>_<view>)")
     args = parser.parse_args(argv)

@@ -8,7 +8,10 @@ Observation (copies, never views into simulator memory):
     pixels/active (H, W, 3) uint8: the active camera's RGB image;
     point_cloud (N, 6) float32: xyz in the base frame (default) or the camera frame (OpenCV
         convention: x right, y down, z forward), rgb in [0, 1];
-    point_pixels (N, 2) int32: the source pixel (u, v) of every point (-1 if the view is empty).
+    point_pixels (N, 2) int32: the source pixel (u, v) of every point (-1 if the view is empty);
+    environment_state (7 K,) float32, only with `environment_state=True`: the task's K object
+        poses (xyz in metres, base frame; wxyz quaternion), the privileged-state observation
+        that bounds what behaviour cloning can reach with perfect perception.
 Reward: task progress d / 5 (deepest milestone so far, monotone), so LeRobot's
 `avg_max_reward` is the Task Progress Score. `terminated` and `info["is_success"]` at M5.
 Privileged information (milestone flags, object poses, camera pose) only goes into `info`.
@@ -89,6 +92,8 @@ class BavoEnv(gym.Env):
             under occluded conditions.
         visibility_scale: resolution of the privileged visibility renders relative to the
             observation image (V is a pixel ratio; 0.5 keeps it cheap).
+        environment_state: also observe the task's object poses (`environment_state`, privileged;
+            for the privileged-state policies of the failure ladder, never for benchmark results).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": C.CONTROL_HZ}
@@ -107,6 +112,7 @@ class BavoEnv(gym.Env):
         render_height: int = 240,
         compute_cvg: bool | None = None,
         visibility_scale: float = 0.5,
+        environment_state: bool = False,
     ):
         if condition not in CONDITIONS:
             raise ValueError(f"unknown condition {condition!r}; expected one of {CONDITIONS}")
@@ -139,6 +145,8 @@ class BavoEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self.task.bind(self.model)
         self.kinematics = make_arm_kinematics(self.model)
+        self.environment_state = bool(environment_state)
+        self.environment_state_dim = int(self.task.environment_state(self.model, self.data).shape[0])
 
         # Actuator i drives the joint of action entry i (same 21-entry order).
         self._act_qpos_adr = self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]
@@ -158,6 +166,9 @@ class BavoEnv(gym.Env):
             "point_cloud": gym.spaces.Box(-np.inf, np.inf, (n_points, 6), np.float32),
             "point_pixels": gym.spaces.Box(-1, max(image_height, image_width), (n_points, 2), np.int32),
         })
+        if self.environment_state:
+            self.observation_space["environment_state"] = gym.spaces.Box(
+                -np.inf, np.inf, (self.environment_state_dim,), np.float32)
 
         self._renderer: SceneRenderer | None = None
         self._video_renderer: SceneRenderer | None = None
@@ -358,12 +369,15 @@ class BavoEnv(gym.Env):
             rgb, depth, self._K, self.camera_pose(), s.n_points, frame=s.point_frame,
             workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH, stride=s.point_stride,
         )
-        return {
+        obs = {
             "agent_pos": self.joint_state().astype(np.float32),
             "pixels": {"active": rgb},
             "point_cloud": cloud,
             "point_pixels": pixels,
         }
+        if self.environment_state:
+            obs["environment_state"] = self.task.environment_state(self.model, self.data)
+        return obs
 
     def _info(self) -> dict:
         info = {

@@ -16,7 +16,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE, OBS_STR
 
 from lerobot_bavo.envs.bavo_env import CONDITIONS, POINT_FRAMES
-from lerobot_bavo.envs.tasks import TASK_NAMES, TASKS
+from lerobot_bavo.envs.tasks import TASK_NAMES, TASKS, environment_state_dim
 from lerobot_bavo.sim.constants import ACTION_DIM, CONTROL_HZ
 
 from . import GYM_NAMESPACE, gym_id
@@ -26,11 +26,13 @@ ENV_STATE_KEY = "agent_pos"
 ENV_IMAGE_KEY = "pixels/active"
 ENV_POINT_CLOUD_KEY = "point_cloud"
 ENV_POINT_PIXELS_KEY = "point_pixels"
+ENV_ENV_STATE_KEY = "environment_state"
 
 # The policy-side (and dataset-side) names of the same features.
 OBS_IMAGE_ACTIVE = f"{OBS_IMAGES}.active"  # "observation.images.active"
 OBS_POINT_CLOUD = f"{OBS_STR}.point_cloud"  # "observation.point_cloud"
 OBS_POINT_PIXELS = f"{OBS_STR}.point_pixels"  # "observation.point_pixels"
+OBS_ENV_STATE = f"{OBS_STR}.environment_state"  # "observation.environment_state"
 
 RENDER_MODES = ("rgb_array",)
 
@@ -55,6 +57,9 @@ class BavoEnvConfig(EnvConfig):
         n_points: points per point cloud (`observation.point_cloud`, (n_points, 6): xyz + rgb).
         point_frame: frame of the point-cloud xyz, "base" (robot base / world, default) or
             "camera" (active-camera frame, an ablation).
+        environment_state: also observe the task's object poses (`observation.environment_state`,
+            (7 K,): xyz in metres in the base frame + wxyz quaternion per object). Privileged: for
+            the privileged-state rung of the failure ladder, not for benchmark results.
         render_mode: mode of `env.render()`, used by `lerobot-eval` for its episode videos
             ("rgb_array": third-person view beside the active view).
         features: raw env feature specs (filled in `__post_init__`; visual shapes are HWC).
@@ -69,6 +74,7 @@ class BavoEnvConfig(EnvConfig):
     image_width: int = 320
     n_points: int = 256
     point_frame: str = "base"
+    environment_state: bool = False
     render_mode: str = "rgb_array"
     features: dict[str, PolicyFeature] = field(
         default_factory=lambda: {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
@@ -80,6 +86,7 @@ class BavoEnvConfig(EnvConfig):
             ENV_IMAGE_KEY: OBS_IMAGE_ACTIVE,
             ENV_POINT_CLOUD_KEY: OBS_POINT_CLOUD,
             ENV_POINT_PIXELS_KEY: OBS_POINT_PIXELS,
+            ENV_ENV_STATE_KEY: OBS_ENV_STATE,
         }
     )
 
@@ -110,6 +117,9 @@ class BavoEnvConfig(EnvConfig):
         # does for our datasets; policies that cannot use them (ACT, Diffusion) ignore them.
         self.features[ENV_POINT_CLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 6))
         self.features[ENV_POINT_PIXELS_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 2))
+        if self.environment_state:
+            self.features[ENV_ENV_STATE_KEY] = PolicyFeature(
+                type=FeatureType.ENV, shape=(environment_state_dim(self.task),))
 
     @property
     def package_name(self) -> str:
@@ -131,6 +141,7 @@ class BavoEnvConfig(EnvConfig):
             "image_width": self.image_width,
             "n_points": self.n_points,
             "point_frame": self.point_frame,
+            "environment_state": self.environment_state,
             "render_mode": self.render_mode,
             "max_episode_steps": self.episode_length,
             "episode_length": self.episode_length,

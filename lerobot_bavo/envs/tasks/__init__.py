@@ -7,6 +7,8 @@ module propagate (they are bugs, not missing tasks).
 
 from __future__ import annotations
 
+import functools
+
 from lerobot_bavo.envs.tasks.base import Task
 from lerobot_bavo.registry import discover
 
@@ -39,4 +41,21 @@ def make_task(name: str) -> Task:
     return TASKS[name]()
 
 
-__all__ = ["GYM_NAMES", "TASKS", "TASK_NAMES", "Task", "make_task"]
+@functools.lru_cache(maxsize=None)
+def environment_state_dim(name: str) -> int:
+    """Size of a task's `environment_state` (7 per object pose), read from its compiled model once."""
+    import mujoco
+
+    from lerobot_bavo.sim.scene import build_base_spec
+
+    task = make_task(name)
+    spec = build_base_spec()
+    task.build(spec)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    task.bind(model)
+    mujoco.mj_forward(model, data)
+    return int(task.environment_state(model, data).shape[0])
+
+
+__all__ = ["GYM_NAMES", "TASKS", "TASK_NAMES", "Task", "environment_state_dim", "make_task"]

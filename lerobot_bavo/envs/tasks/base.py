@@ -111,6 +111,15 @@ class Task(abc.ABC):
         """Privileged 7-d poses (xyz, wxyz quaternion) of the task's objects, for `info`."""
         return {}
 
+    def environment_state(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+        """`object_poses` flattened in their declared order: (7 * K,) float32 (xyz in metres, base frame;
+        wxyz quaternion). The privileged-state observation (`observation.environment_state`), as
+        AV-ALOHA's `environment_state`: the ceiling of behaviour cloning with perfect perception."""
+        poses = self.object_poses(model, data)
+        if not poses:
+            return np.zeros(0, dtype=np.float32)
+        return np.concatenate([np.asarray(p, dtype=np.float64) for p in poses.values()]).astype(np.float32)
+
     def view_points(self, model: mujoco.MjModel, data: mujoco.MjData, depth: int) -> np.ndarray:
         """Points (K, 3) the camera should keep in view at milestone depth `depth`."""
         return np.zeros((1, 3))
