@@ -36,7 +36,7 @@ def parse_args() -> argparse.Namespace:
         pass
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=Formatter)
-    p.add_argument("--preset", default="cpu", choices=["cpu", "paper"], help="policy size preset")
+    p.add_argument("--preset", default="cpu", choices=["cpu", "cpu_fast", "paper"], help="policy size preset")
     p.add_argument("--batch-size", type=int, default=32, help="training batch size")
     p.add_argument("--train-threads", type=int, default=2, help="torch threads for the training steps")
     p.add_argument("--train-steps", type=int, default=6, help="timed training steps per policy")

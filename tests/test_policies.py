@@ -532,3 +532,90 @@ def test_bavo_flat_dataset_layout_and_env_layout(name):
     flat = pre({PC: cloud[:1].reshape(1, -1), STATE: raw[STATE][:1, -1]})
     torch.testing.assert_close(post(policy.select_action(flat, noise=noise)), a_env)
     assert a_env.shape == (1, ACTION_DIM)
+
+
+# (h) privileged-state mode -------------------------------------------------------------------------------------
+
+ENV = "observation.environment_state"
+
+
+def test_privileged_state_maniflow_tokens_objects_trains_and_acts():
+    """With object poses instead of a point cloud, ManiFlow makes one token per object (7-d pose) and keeps the
+    DiT-X / flow objective; A-FAR refuses (its relations are point-aligned)."""
+    inputs = {ENV: PolicyFeature(FeatureType.ENV, (14,)), STATE: PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+    outputs = {ACT: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
+    cfg = ManiFlowConfig(input_features=dict(inputs), output_features=outputs, **TINY)
+    assert (cfg.observation_key, cfg.num_points, cfg.token_channels) == (ENV, 2, 7)
+    torch.manual_seed(0)
+    policy = ManiFlowPolicy(cfg)
+    assert policy.model.point_encoder.mlp[0].in_features == 7
+    g = torch.Generator().manual_seed(0)
+    batch = {ENV: torch.rand(8, 2, 14, generator=g) * 2 - 1, STATE: torch.rand(8, 2, STATE_DIM, generator=g) * 2 - 1}
+    # the chunk depends on the object poses only: the model must read them to fit
+    batch[ACT] = batch[ENV][:, -1, None, :].repeat(1, 16, 2)[..., :ACTION_DIM]
+    opt = torch.optim.Adam(policy.get_optim_params(), lr=5e-3)
+    start = fixed_seed_loss(policy, batch)
+    policy.train()
+    for _ in range(150):
+        loss, _ = policy.forward(batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        policy.update()
+    assert fixed_seed_loss(policy, batch) < 0.3 * start
+    policy.eval()
+    policy.reset()
+    action = policy.select_action({ENV: batch[ENV][:1, -1], STATE: batch[STATE][:1, -1]})
+    assert action.shape == (1, ACTION_DIM) and torch.isfinite(action).all()
+    with pytest.raises(ValueError, match="point_cloud"):
+        AfarPolicy(AfarConfig(input_features=dict(inputs), output_features=outputs, **TINY_AFAR))
+    with pytest.raises(ValueError, match="ENV feature"):
+        ManiFlowConfig(input_features={**inputs, ENV: PolicyFeature(FeatureType.STATE, (14,))},
+                       output_features=outputs, **TINY).validate_features()
+
+
+def test_point_cloud_stats_reduce_to_per_channel_whatever_the_layout():
+    """Element-wise (per-slot) stats, as LeRobot's tools rebuild them after an edit, normalise exactly like the
+    per-channel stats computed from all points; mean/std combine exactly for equal slot counts."""
+    from lerobot_bavo.policies.maniflow.processor_maniflow import per_channel_point_stats
+
+    g = torch.Generator().manual_seed(0)
+    frames = torch.rand(50, N_POINTS, 6, generator=g, dtype=torch.float64) * torch.linspace(0.5, 2, 6)
+    per_slot = {"min": frames.amin(0).reshape(-1), "max": frames.amax(0).reshape(-1),
+                "mean": frames.mean(0).reshape(-1), "std": frames.std(0, unbiased=False).reshape(-1),
+                "count": torch.tensor([50])}
+    out = per_channel_point_stats(per_slot, N_POINTS, 6)
+    flat = frames.reshape(-1, 6)
+    torch.testing.assert_close(out["min"].reshape(N_POINTS, 6), flat.amin(0).expand(N_POINTS, 6))
+    torch.testing.assert_close(out["max"].reshape(N_POINTS, 6), flat.amax(0).expand(N_POINTS, 6))
+    torch.testing.assert_close(out["mean"].reshape(N_POINTS, 6), flat.mean(0).expand(N_POINTS, 6))
+    torch.testing.assert_close(out["std"].reshape(N_POINTS, 6), flat.std(0, unbiased=False).expand(N_POINTS, 6))
+    assert out["count"].tolist() == [50]
+    # already-tiled stats are a fixed point
+    again = per_channel_point_stats(out, N_POINTS, 6)
+    for k in ("min", "max", "mean", "std"):
+        torch.testing.assert_close(again[k], out[k])
+
+
+@pytest.mark.parametrize("make", [make_maniflow, make_afar], ids=["maniflow", "afar"])
+def test_points_per_step_reads_exactly_the_fps_prefix(make):
+    """`points_per_step` = M: the policy reads the first M of the N (FPS-ordered) points and nothing else; the
+    teacher features are cut to the same points, so A-FAR's relational loss stays point-aligned."""
+    policy = make(points_per_step=8)
+    assert policy.config.num_points == N_POINTS and policy.config.num_tokens == 8
+    assert policy.model.dit.context_pos.shape[1] == 2 * 8
+    randomize_zero_init(policy)
+    policy.eval()
+    batch = synthetic_batch(b=2)
+    other = copy.deepcopy(batch)
+    other[PC][:, :, 8:] = torch.rand_like(other[PC][:, :, 8:])  # points the policy must not read
+    noise = torch.randn(2, 16, ACTION_DIM, generator=torch.Generator().manual_seed(0))
+    a = policy.generate_actions(batch, noise=noise)
+    torch.testing.assert_close(a, policy.generate_actions(other, noise=noise))
+    other[PC][:, :, 3] += 0.5  # a point it does read
+    assert not torch.allclose(a, policy.generate_actions(other, noise=noise))
+    policy.train()
+    loss, info = policy.forward(batch)
+    assert torch.isfinite(loss)
+    with pytest.raises(ValueError, match="exceeds"):
+        make(points_per_step=N_POINTS + 1)

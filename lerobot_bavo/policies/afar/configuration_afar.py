@@ -21,6 +21,7 @@ OBS_TEACHER_VALID = f"{OBS_TEACHER_PREFIX}.valid"
 AFAR_PRESETS: dict[str, dict] = {
     "paper": {"wqf_hidden_dim": 128, "wqf_num_blocks": 2, "wqf_ffn_ratio": 4.0, "relation_num_points": 0},
     "cpu": {"wqf_hidden_dim": 64, "wqf_num_blocks": 1, "wqf_ffn_ratio": 2.0, "relation_num_points": 128},
+    "cpu_fast": {"wqf_hidden_dim": 64, "wqf_num_blocks": 1, "wqf_ffn_ratio": 2.0, "relation_num_points": 0},
 }
 
 
@@ -92,6 +93,14 @@ class AfarConfig(ManiFlowConfig):
             raise ValueError(f"`relation_num_points` must be 0 (all) or >= 2. Got {self.relation_num_points}.")
         if self.lambda_rel < 0:
             raise ValueError(f"`lambda_rel` must be >= 0. Got {self.lambda_rel}.")
+
+    def validate_features(self) -> None:
+        super().validate_features()
+        if not self.uses_point_cloud:
+            raise ValueError(
+                "A-FAR distils point-aligned teacher relations, so it needs 'observation.point_cloud' among the "
+                "input features; the privileged-state mode ('observation.environment_state' only) is ManiFlow's."
+            )
 
     @property
     def uses_relational_loss(self) -> bool:

@@ -165,10 +165,11 @@ class AfarPolicy(ManiFlowPolicy):
     def relational_loss(self, batch: dict[str, Tensor], aux: dict[str, Tensor]) -> tuple[Tensor, Tensor, int]:
         """(L_cur, L_evo, number of valid samples) on the current step's tokens; disabled terms are 0."""
         cfg: AfarConfig = self.config
-        h_cur = aux["h_cur"]  # (B, N, Dp)
-        b, n = h_cur.shape[:2]
-        z0 = _teacher_tokens(batch[OBS_TEACHER_Z0], b, n, OBS_TEACHER_Z0)
-        zf = _teacher_tokens(batch[OBS_TEACHER_ZF], b, n, OBS_TEACHER_ZF)
+        h_cur = aux["h_cur"]  # (B, M, Dp): the first M of the N points (`points_per_step`)
+        b, n = h_cur.shape[0], cfg.num_points
+        z0 = _teacher_tokens(batch[OBS_TEACHER_Z0], b, n, OBS_TEACHER_Z0)[:, : h_cur.shape[1]]
+        zf = _teacher_tokens(batch[OBS_TEACHER_ZF], b, n, OBS_TEACHER_ZF)[:, : h_cur.shape[1]]
+        n = h_cur.shape[1]
         zero = h_cur.new_zeros(())
         idx = None
         if OBS_TEACHER_VALID in batch:

@@ -9,6 +9,10 @@ from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 OBS_POINT_CLOUD = "observation.point_cloud"
+# Privileged-state alternative to the point cloud: K object poses (7 each: xyz + wxyz quaternion), one token per
+# object. Used by the first rung of the failure ladder (docs/results/ladder_cube_handoff.md).
+OBS_ENV_STATE = "observation.environment_state"
+POSE_CHANNELS = 7
 # Training-only targets ride along under this prefix (see `validate_features`).
 OBS_TEACHER_PREFIX = "observation.teacher"
 
@@ -24,6 +28,7 @@ MANIFLOW_PRESETS: dict[str, dict] = {
         "dit_num_heads": 8,
         "time_embed_hidden_dim": 512,
         "point_encoder_hidden_dims": (64, 128, 256, 512),
+        "dropout": 0.1,
     },
     "cpu": {
         "dit_hidden_dim": 192,
@@ -31,6 +36,16 @@ MANIFLOW_PRESETS: dict[str, dict] = {
         "dit_num_heads": 4,
         "time_embed_hidden_dim": 256,
         "point_encoder_hidden_dims": (64, 128, 256, 512),
+        "dropout": 0.1,
+    },
+    "cpu_fast": {
+        "dit_hidden_dim": 128,
+        "dit_num_layers": 3,
+        "dit_num_heads": 4,
+        "time_embed_hidden_dim": 128,
+        "point_encoder_hidden_dims": (64, 128),
+        "points_per_step": 64,
+        "dropout": 0.0,
     },
 }
 
@@ -44,9 +59,13 @@ class ManiFlowConfig(PreTrainedConfig):
     points, observation horizon 2, action horizon 16, 21-d state and action).
 
     Inputs and outputs:
-        - `observation.point_cloud` (N, C) with C = `point_channels` (6: xyz + rgb in [0, 1]; 3: xyz), required.
+        - `observation.point_cloud` (N, C) with C = `point_channels` (6: xyz + rgb in [0, 1]; 3: xyz).
           The flat row-major layout (N * C,) of BAVO datasets is accepted too (the processor reshapes env
           observations to the trained layout; the model unflattens).
+        - or, when the input features have no point cloud, `observation.environment_state` (7 K,): the privileged
+          object poses (xyz + wxyz quaternion per object). Each object becomes one token through the same
+          per-token encoder (the privileged-state ManiFlow of the failure ladder: perfect perception, same
+          DiT-X and flow objective).
         - `observation.state` (S,), required.
         - `action` (A,), required output.
         - Keys under `observation.teacher.*` are training-only targets (used by A-FAR) and are removed from
@@ -91,10 +110,16 @@ class ManiFlowConfig(PreTrainedConfig):
         dit_num_layers: Number of DiT-X blocks; None means from the preset (paper 12, cpu 3).
         dit_num_heads: Attention heads per DiT-X block; None means from the preset (paper 8, cpu 4).
         dit_mlp_ratio: Hidden width of the block MLP relative to dit_hidden_dim (paper 4).
-        dropout: Dropout in DiT-X attention and MLPs (paper 0.1).
+        dropout: Dropout in DiT-X attention and MLPs; None means from the preset (paper and cpu 0.1, cpu_fast 0:
+            on CPU, attention dropout forces PyTorch's unfused attention and the Bernoulli masks cost ~30 % of a
+            training step, measured with torch.profiler).
         time_freq_dim: Size of the sinusoidal embedding of t and of dt (paper 128; raw t in [0, 1]).
         time_embed_hidden_dim: Hidden width of the time MLP (sinusoid -> hidden -> Mish -> width); None means
             from the preset (paper 512, cpu 256).
+        points_per_step: Points per observation step the policy reads: the first M of the cloud's N points;
+            0 = all N. BAVO clouds are stored in farthest-point-sampling order (`envs/pointcloud.py`), so the
+            first M points are exactly the M-point FPS sample of the same view, and the point-aligned teacher
+            features are cut the same way. None means from the preset (paper and cpu: 0; cpu_fast: 64).
         num_inference_steps: Euler steps from noise (t = 0) to data (t = 1) at inference. ManiFlow claims 1-2
             steps thanks to the consistency objective (its released scripts use 10).
         use_ema_for_inference: Predict actions with the EMA copy (ManiFlow's eval model). The EMA copy is always
@@ -126,6 +151,7 @@ class ManiFlowConfig(PreTrainedConfig):
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,
             "STATE": NormalizationMode.MIN_MAX,
+            "ENV": NormalizationMode.MIN_MAX,
             "ACTION": NormalizationMode.MIN_MAX,
         }
     )
@@ -142,9 +168,10 @@ class ManiFlowConfig(PreTrainedConfig):
     dit_num_layers: int | None = None
     dit_num_heads: int | None = None
     dit_mlp_ratio: float = 4.0
-    dropout: float = 0.1
+    dropout: float | None = None
     time_freq_dim: int = 128
     time_embed_hidden_dim: int | None = None
+    points_per_step: int | None = None
 
     # Inference.
     num_inference_steps: int = 2
@@ -175,7 +202,12 @@ class ManiFlowConfig(PreTrainedConfig):
         for name, value in MANIFLOW_PRESETS[self.preset].items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
+        for name in ("points_per_step",):  # fields newer presets set; older presets mean "all"
+            if getattr(self, name) is None:
+                setattr(self, name, 0)
         self.point_encoder_hidden_dims = tuple(int(d) for d in self.point_encoder_hidden_dims)
+        if self.points_per_step < 0:
+            raise ValueError(f"`points_per_step` must be >= 0 (0 = all points). Got {self.points_per_step}.")
 
         if self.dit_hidden_dim % self.dit_num_heads != 0:
             raise ValueError(
@@ -218,28 +250,56 @@ class ManiFlowConfig(PreTrainedConfig):
             for key in [k for k in self.input_features if k.startswith(OBS_TEACHER_PREFIX)]:
                 del self.input_features[key]
         inputs = self.input_features or {}
-        if OBS_POINT_CLOUD not in inputs:
-            raise ValueError(f"{type(self).__name__} needs '{OBS_POINT_CLOUD}' among the input features.")
-        shape = tuple(inputs[OBS_POINT_CLOUD].shape)
-        c = self.point_channels
+        if OBS_POINT_CLOUD not in inputs and OBS_ENV_STATE not in inputs:
+            raise ValueError(
+                f"{type(self).__name__} needs '{OBS_POINT_CLOUD}' (or, privileged-state mode, '{OBS_ENV_STATE}') "
+                f"among the input features. Got {sorted(inputs)}."
+            )
+        shape = tuple(inputs[self.observation_key].shape)
+        c = self.token_channels
         if not ((len(shape) == 2 and shape[1] == c) or (len(shape) == 1 and shape[0] % c == 0 and shape[0] >= c)):
             raise ValueError(
-                f"'{OBS_POINT_CLOUD}' must have shape (N, {c}) or the flat (N * {c},) (`point_channels`={c}). "
-                f"Got {shape}."
+                f"'{self.observation_key}' must have shape (N, {c}) or the flat (N * {c},). Got {shape}."
             )
         if OBS_STATE not in inputs:
             raise ValueError(f"{type(self).__name__} needs '{OBS_STATE}' among the input features.")
         if self.output_features and ACTION not in self.output_features:
             raise ValueError(f"{type(self).__name__} needs '{ACTION}' among the output features.")
-        for key in (OBS_POINT_CLOUD, OBS_STATE):
-            if inputs[key].type is not FeatureType.STATE:
-                raise ValueError(f"'{key}' must be a STATE feature. Got {inputs[key].type}.")
+        expected = {OBS_STATE: FeatureType.STATE, OBS_POINT_CLOUD: FeatureType.STATE, OBS_ENV_STATE: FeatureType.ENV}
+        for key in (self.observation_key, OBS_STATE):
+            if inputs[key].type is not expected[key]:
+                raise ValueError(f"'{key}' must be a {expected[key].name} feature. Got {inputs[key].type}.")
+
+    @property
+    def observation_key(self) -> str:
+        """The observation the tokens come from: the point cloud, else the privileged object poses."""
+        inputs = self.input_features or {}
+        return OBS_POINT_CLOUD if OBS_POINT_CLOUD in inputs or OBS_ENV_STATE not in inputs else OBS_ENV_STATE
+
+    @property
+    def uses_point_cloud(self) -> bool:
+        return self.observation_key == OBS_POINT_CLOUD
+
+    @property
+    def token_channels(self) -> int:
+        """Channels per observation token: `point_channels` per point, 7 per object pose."""
+        return self.point_channels if self.uses_point_cloud else POSE_CHANNELS
 
     @property
     def num_points(self) -> int:
-        """N, from the point-cloud feature ((N, C) or flat (N * C,))."""
-        shape = self.input_features[OBS_POINT_CLOUD].shape
-        return int(math.prod(shape)) // self.point_channels
+        """Observation entities per step in the data: N points ((N, C) or flat (N * C,)), or K objects."""
+        shape = self.input_features[self.observation_key].shape
+        return int(math.prod(shape)) // self.token_channels
+
+    @property
+    def num_tokens(self) -> int:
+        """Observation tokens per step the model reads: `points_per_step` of the N points (all if 0), or K."""
+        n = self.num_points
+        if not self.uses_point_cloud or not self.points_per_step:
+            return n
+        if self.points_per_step > n:
+            raise ValueError(f"`points_per_step` ({self.points_per_step}) exceeds the cloud's {n} points.")
+        return self.points_per_step
 
     @property
     def observation_delta_indices(self) -> list:

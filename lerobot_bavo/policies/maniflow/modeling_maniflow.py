@@ -21,7 +21,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from .configuration_maniflow import OBS_POINT_CLOUD, ManiFlowConfig
+from .configuration_maniflow import ManiFlowConfig
 
 # --------------------------------------------------------------------------------------------------------------
 # Observation encoder.
@@ -253,14 +253,14 @@ class ManiFlowModel(nn.Module):
         state_dim = int(config.input_features[OBS_STATE].shape[0])
         action_dim = int(config.output_features[ACTION].shape[0])
         self.point_encoder = PointEncoder(
-            config.point_channels, config.point_encoder_hidden_dims, config.point_feature_dim
+            config.token_channels, config.point_encoder_hidden_dims, config.point_feature_dim
         )
         self.state_encoder = StateEncoder(state_dim, config.state_feature_dim)
         self.dit = DiTX(
             config,
             action_dim=action_dim,
             context_dim=config.point_feature_dim + config.state_feature_dim,
-            context_len=config.n_obs_steps * config.num_points,
+            context_len=config.n_obs_steps * config.num_tokens,
         )
 
     def encode_observations(self, point_cloud: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
@@ -367,7 +367,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
     def reset(self):
         """Clear the observation and action queues; call on env.reset()."""
         self._queues = {
-            OBS_POINT_CLOUD: deque(maxlen=self.config.n_obs_steps),
+            self.config.observation_key: deque(maxlen=self.config.n_obs_steps),
             OBS_STATE: deque(maxlen=self.config.n_obs_steps),
             ACTION: deque(maxlen=self.config.n_action_steps),
         }
@@ -395,16 +395,19 @@ class ManiFlowPolicy(PreTrainedPolicy):
     # ---- Inputs ---------------------------------------------------------------------------------------------
 
     def _points(self, pc: Tensor) -> Tensor:
-        """(..., N * C) flat (dataset layout) or (..., N, C) -> (..., N, C)."""
-        n, c = self.config.num_points, self.config.point_channels
+        """(..., N * C) flat (dataset layout) or (..., N, C) -> (..., M, C): the first M = `num_tokens` points
+        (an exact M-point FPS subsample, clouds being FPS-ordered); object poses: (..., K, 7)."""
+        n, c = self.config.num_points, self.config.token_channels
         if pc.shape[-1] == n * c and not (pc.ndim >= 2 and tuple(pc.shape[-2:]) == (n, c)):
             pc = pc.reshape(*pc.shape[:-1], n, c)
-        return pc
+        m = self.config.num_tokens
+        return pc[..., :m, :] if m < pc.shape[-2] else pc
 
     def _observation_tensors(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
         """Point cloud (B, To, N, C) and state (B, To, S); single-step inputs are repeated To times."""
         to = self.config.n_obs_steps
-        pc, state = self._points(batch[OBS_POINT_CLOUD]), batch[OBS_STATE]
+        key = self.config.observation_key
+        pc, state = self._points(batch[key]), batch[OBS_STATE]
         if pc.ndim == 2:  # (N, C), unbatched
             pc = pc[None]
         if pc.ndim == 3:  # (B, N, C), no time axis
@@ -415,8 +418,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
             state = state[:, None].expand(-1, to, -1)
         if pc.ndim != 4 or pc.shape[1] != to or state.ndim != 3 or state.shape[1] != to:
             raise ValueError(
-                f"Expected '{OBS_POINT_CLOUD}' (B, {to}, N, C) and '{OBS_STATE}' (B, {to}, S); got "
-                f"{tuple(batch[OBS_POINT_CLOUD].shape)} and {tuple(batch[OBS_STATE].shape)}."
+                f"Expected '{key}' (B, {to}, N, C) and '{OBS_STATE}' (B, {to}, S); got "
+                f"{tuple(batch[key].shape)} and {tuple(batch[OBS_STATE].shape)}."
             )
         return pc, state
 
@@ -457,8 +460,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
         Uses the observation queues when `select_action` filled them, else the batch as given (B, To, ...).
         """
-        if any(len(self._queues[k]) > 0 for k in (OBS_POINT_CLOUD, OBS_STATE)):
-            batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in (OBS_POINT_CLOUD, OBS_STATE)}
+        keys = (self.config.observation_key, OBS_STATE)
+        if any(len(self._queues[k]) > 0 for k in keys):
+            batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in keys}
         actions = self.generate_actions(batch, noise=noise, generator=generator)
         start = self.config.n_obs_steps - 1
         return actions[:, start : start + self.config.n_action_steps]
@@ -471,9 +475,11 @@ class ManiFlowPolicy(PreTrainedPolicy):
         generator: torch.Generator | None = None,
     ) -> Tensor:
         """One action (B, A) per call; a new chunk is generated every `n_action_steps` calls. Needs only the
-        current `observation.point_cloud` and `observation.state` (teacher keys are never read here)."""
-        obs = {OBS_POINT_CLOUD: self._points(batch[OBS_POINT_CLOUD]), OBS_STATE: batch[OBS_STATE]}
-        for key, unbatched_ndim in ((OBS_POINT_CLOUD, 2), (OBS_STATE, 1)):
+        current `observation.point_cloud` (or object poses) and `observation.state` (teacher keys are never read
+        here)."""
+        key = self.config.observation_key
+        obs = {key: self._points(batch[key]), OBS_STATE: batch[OBS_STATE]}
+        for key, unbatched_ndim in ((key, 2), (OBS_STATE, 1)):
             if obs[key].ndim == unbatched_ndim:
                 obs[key] = obs[key][None]
         self._queues = populate_queues(self._queues, obs)

@@ -31,7 +31,48 @@ from lerobot.processor import (
     make_policy_processor_pipelines,
 )
 
-from .configuration_maniflow import ManiFlowConfig
+from .configuration_maniflow import OBS_POINT_CLOUD, ManiFlowConfig
+
+
+def per_channel_point_stats(stats: dict[str, Any], n_points: int, channels: int) -> dict[str, torch.Tensor]:
+    """Point-cloud stats made independent of point order: reduce per-slot stats to per-channel, tile back.
+
+    Why: a flat (N * C,) cloud's stats may be element-wise, one min/max per point *slot*. `bavo-collect` writes
+    them tiled per channel, but LeRobot's dataset tools (delete / split / merge episodes, stats recomputation)
+    rebuild the global stats from element-wise per-episode stats, so after an edit every slot gets its own
+    range and the same frame normalises differently depending on point order. Reducing over the slots gives
+    exactly the per-channel min and max (the min of per-slot minima is the minimum over all points), so the
+    MIN_MAX normaliser that ManiFlow uses is the same however the dataset was produced. `mean` and `std` are
+    combined assuming equal counts per slot (true: every frame has N points); quantiles, which cannot be
+    combined exactly and are not used by MIN_MAX, become the mean over slots. `count` is kept.
+
+    Args:
+        stats: LeRobot stats of `observation.point_cloud` (arrays or tensors of shape (N * C,) or (N, C), or
+            already per-channel (C,)).
+        n_points, channels: N and C.
+
+    Returns:
+        Stats of shape (N * C,) (or (N, C) when given so) in which every slot holds its channel's value.
+    """
+    out: dict[str, torch.Tensor] = {}
+    for name, value in stats.items():
+        v = torch.as_tensor(value)
+        if name == "count" or v.numel() not in (n_points * channels,):
+            out[name] = v
+            continue
+        shape = v.shape
+        per_slot = v.reshape(n_points, channels).to(torch.float64)
+        if name == "min":
+            red = per_slot.min(0).values
+        elif name == "max":
+            red = per_slot.max(0).values
+        elif name == "std" and "mean" in stats:
+            means = torch.as_tensor(stats["mean"]).reshape(n_points, channels).to(torch.float64)
+            red = ((per_slot**2 + means**2).mean(0) - means.mean(0) ** 2).clamp_min(0).sqrt()
+        else:
+            red = per_slot.mean(0)
+        out[name] = red.repeat(n_points).reshape(shape).to(v.dtype)
+    return out
 
 
 @ProcessorStepRegistry.register(name="maniflow_feature_layout")
@@ -97,11 +138,17 @@ def make_maniflow_pre_post_processors(
     Args:
         config: The policy configuration; call `validate_features()` first (the policy's constructor does) so
             that training-only teacher keys are neither reshaped nor normalised.
-        dataset_stats: Dataset statistics (min/max per feature, per last-axis element). Defaults to None.
+        dataset_stats: Dataset statistics (min/max per feature, per last-axis element). Defaults to None. The
+            point cloud's are reduced to per-channel values first (`per_channel_point_stats`).
 
     Returns:
         The pre-processor and post-processor pipelines.
     """
+    if dataset_stats is not None and config.uses_point_cloud and OBS_POINT_CLOUD in dataset_stats:
+        dataset_stats = dict(dataset_stats)
+        dataset_stats[OBS_POINT_CLOUD] = per_channel_point_stats(
+            dataset_stats[OBS_POINT_CLOUD], config.num_points, config.point_channels
+        )
     steps = make_default_policy_processor_steps(config, dataset_stats, normalizer_device=config.device)
     layout = FeatureLayoutProcessorStep.from_features(config.input_features)
     return make_policy_processor_pipelines(
