@@ -619,3 +619,17 @@ def test_points_per_step_reads_exactly_the_fps_prefix(make):
     assert torch.isfinite(loss)
     with pytest.raises(ValueError, match="exceeds"):
         make(points_per_step=N_POINTS + 1)
+
+
+def test_afar_fusion_gate_has_its_own_optimizer_group():
+    """gamma is optimised without weight decay at `fusion_gate_lr_scale` x lr; everything else as configured."""
+    policy = make_afar(fusion_gate_lr_scale=10.0)
+    groups = policy.get_optim_params()
+    opt = policy.config.get_optimizer_preset().build(groups)
+    gate_group = next(g for g in opt.param_groups if any(p is policy.model.fusion_gate for p in g["params"]))
+    assert gate_group["weight_decay"] == 0.0 and gate_group["lr"] == pytest.approx(10 * policy.config.optimizer_lr)
+    others = [g for g in opt.param_groups if g is not gate_group]
+    assert len(others) == 1 and others[0]["weight_decay"] == policy.config.optimizer_weight_decay
+    n_params = sum(p.numel() for g in opt.param_groups for p in g["params"])
+    assert n_params == sum(p.numel() for p in policy.model.parameters())
+    assert AfarConfig(preset="paper").fusion_gate_lr_scale == 1.0 and AfarConfig(preset="cpu_fast").fusion_gate_lr_scale == 10.0

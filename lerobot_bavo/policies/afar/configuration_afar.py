@@ -19,9 +19,12 @@ OBS_TEACHER_VALID = f"{OBS_TEACHER_PREFIX}.valid"
 # dominate otherwise). `--policy.wqf_num_blocks=2` restores the paper's depth at ~1.4-1.5x ManiFlow's step
 # time.
 AFAR_PRESETS: dict[str, dict] = {
-    "paper": {"wqf_hidden_dim": 128, "wqf_num_blocks": 2, "wqf_ffn_ratio": 4.0, "relation_num_points": 0},
-    "cpu": {"wqf_hidden_dim": 64, "wqf_num_blocks": 1, "wqf_ffn_ratio": 2.0, "relation_num_points": 128},
-    "cpu_fast": {"wqf_hidden_dim": 64, "wqf_num_blocks": 1, "wqf_ffn_ratio": 2.0, "relation_num_points": 0},
+    "paper": {"wqf_hidden_dim": 128, "wqf_num_blocks": 2, "wqf_ffn_ratio": 4.0, "relation_num_points": 0,
+              "fusion_gate_lr_scale": 1.0},
+    "cpu": {"wqf_hidden_dim": 64, "wqf_num_blocks": 1, "wqf_ffn_ratio": 2.0, "relation_num_points": 128,
+            "fusion_gate_lr_scale": 1.0},
+    "cpu_fast": {"wqf_hidden_dim": 64, "wqf_num_blocks": 1, "wqf_ffn_ratio": 2.0, "relation_num_points": 0,
+                 "fusion_gate_lr_scale": 10.0},
 }
 
 
@@ -64,6 +67,13 @@ class AfarConfig(ManiFlowConfig):
             M = a random subset of M points per training step (same subset for the batch); None means from the
             preset (paper 0, cpu 128).
         relation_eps: eps of the relation operator R(Y|X) (mean pairwise distance + eps).
+        fusion_gate_lr_scale: Learning-rate multiplier of the fusion gate gamma (its own AdamW parameter group,
+            always without weight decay); None means from the preset (paper and cpu 1, cpu_fast 10). Why: with
+            Adam, gamma moves at most ~lr per step, and its gradient changes sign often, so within a CPU budget
+            (~1 % of the paper's 100K steps) tanh(gamma) stays near 0 and A-FAR acts as ManiFlow (0.004 after
+            2000 steps in an earlier run). Weight decay is not the cause (decoupled AdamW shrinks gamma by
+            lr * wd = 1e-7 of itself per step) but is still left off gamma, as for gains and biases. The
+            gate's value is logged as `fusion_gate_abs` (mean |tanh(gamma)|).
     """
 
     wqf_hidden_dim: int | None = None
@@ -78,6 +88,7 @@ class AfarConfig(ManiFlowConfig):
     lambda_rel: float = 0.01
     relation_num_points: int | None = None
     relation_eps: float = 1e-6
+    fusion_gate_lr_scale: float | None = None
 
     def __post_init__(self):
         super().__post_init__()
@@ -91,6 +102,8 @@ class AfarConfig(ManiFlowConfig):
             )
         if self.relation_num_points == 1 or self.relation_num_points < 0:
             raise ValueError(f"`relation_num_points` must be 0 (all) or >= 2. Got {self.relation_num_points}.")
+        if self.fusion_gate_lr_scale <= 0:
+            raise ValueError(f"`fusion_gate_lr_scale` must be > 0. Got {self.fusion_gate_lr_scale}.")
         if self.lambda_rel < 0:
             raise ValueError(f"`lambda_rel` must be >= 0. Got {self.lambda_rel}.")
 

@@ -127,6 +127,16 @@ class AfarPolicy(ManiFlowPolicy):
     def _make_model(self, config: AfarConfig) -> AfarModel:
         return AfarModel(config)
 
+    def get_optim_params(self) -> list[dict]:
+        """Two AdamW groups: every weight as configured, and the fusion gate gamma without weight decay at
+        `fusion_gate_lr_scale` x the learning rate (see `AfarConfig.fusion_gate_lr_scale`)."""
+        gate = self.model.fusion_gate
+        rest = [p for p in self.model.parameters() if p is not gate]
+        return [
+            {"params": rest},
+            {"params": [gate], "weight_decay": 0.0, "lr": self.config.optimizer_lr * self.config.fusion_gate_lr_scale},
+        ]
+
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
         """L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo); logging dict of floats.
 
