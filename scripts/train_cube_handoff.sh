@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# The CPU recipe behind docs/results/ladder_cube_handoff.md and the shipped A-FAR checkpoint, one stage at a
+# time. Every training is a plain `lerobot-train` call: resumable with --resume=true (re-run the same stage),
+# checkpointed every SAVE_FREQ steps. On a GPU use the same commands with DEVICE=cuda (and, for the paper's
+# scale, PRESET=paper STEPS=100000).
+#
+#   bash scripts/train_cube_handoff.sh collect      # 100 Stage demonstrations (bavo-collect), ~15-30 min
+#   bash scripts/train_cube_handoff.sh views        # the `points` and `state` training views
+#   bash scripts/train_cube_handoff.sh state        # rung 1: privileged-state ManiFlow
+#   bash scripts/train_cube_handoff.sh maniflow     # rung 2: point-cloud ManiFlow
+#   bash scripts/train_cube_handoff.sh afar         # rung 3: A-FAR (same budget and seed as rung 2)
+#   bash scripts/train_cube_handoff.sh eval RUN     # bavo-eval of outputs/train/RUN (clean + stage, 20 seeds)
+#
+# Environment overrides: STEPS, BATCH, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
+export OMP_NUM_THREADS="${THREADS:-1}"
+DS=outputs/datasets/bavo_cube_handoff
+REPO=local/bavo_cube_handoff
+STEPS="${STEPS:-8000}"
+BATCH="${BATCH:-64}"
+SAVE_FREQ="${SAVE_FREQ:-1000}"
+PRESET="${PRESET:-cpu_fast}"
+SEED="${SEED:-1000}"
+DEVICE="${DEVICE:-cpu}"
+EPISODES="${EPISODES:-20}"
+
+train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
+    local name=$1 type=$2 view=$3
+    shift 3
+    local out=outputs/train/$name
+    if [ -f "$out/checkpoints/last/pretrained_model/train_config.json" ]; then
+        echo "[train] resuming $out"
+        .venv/bin/lerobot-train --config_path="$out/checkpoints/last/pretrained_model/train_config.json" \
+            --resume=true 2>&1 | tee -a "outputs/train/$name.log"
+        return
+    fi
+    mkdir -p outputs/train
+    .venv/bin/lerobot-train --policy.type="$type" --policy.preset="$PRESET" \
+        --dataset.repo_id="${REPO}_$view" --dataset.root="${DS}_$view" \
+        --policy.device="$DEVICE" --policy.push_to_hub=false --num_workers=0 \
+        --batch_size="$BATCH" --steps="$STEPS" --save_freq="$SAVE_FREQ" --log_freq=50 --seed="$SEED" \
+        --output_dir="$out" --wandb.enable=false "$@" 2>&1 | tee "outputs/train/$name.log"
+}
+
+case "${1:-}" in
+    collect)
+        .venv/bin/bavo-collect --task cube_handoff --condition stage --episodes 100 --repo-id "$REPO" \
+            --root "$DS" --workers 2 ;;
+    views)
+        for v in points state; do
+            [ -d "${DS}_$v" ] || .venv/bin/python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
+        done ;;
+    state) train "maniflow_state_s$SEED" maniflow state ;;
+    maniflow) train "maniflow_s$SEED" maniflow points ;;
+    afar) train "afar_s$SEED" afar points ;;
+    eval)
+        run=${2:?usage: eval RUN [STEP]}
+        step=${3:-last}
+        .venv/bin/bavo-eval --policy "outputs/train/$run/checkpoints/$step/pretrained_model" \
+            --tasks cube_handoff --conditions clean,stage --episodes "$EPISODES" --seed 1000 \
+            --workers 1 --videos 2 --output-dir "outputs/eval/${run}_$step" ;;
+    *)
+        sed -n 2,16p "$0"; exit 2 ;;
+esac
