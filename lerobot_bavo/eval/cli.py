@@ -49,14 +49,15 @@ _CACHE: dict = {}
 def _run_job(job: dict) -> dict:
     """One episode in a worker process; envs and agents are cached per (policy, task, condition)."""
     from lerobot_bavo.envs.bavo_env import BavoEnv
-    from lerobot_bavo.eval.rollout import make_agent, run_episode
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
 
     key = (job["policy"], job["task"], job["condition"])
     if key not in _CACHE:
         for old in _CACHE.values():
             old[0].close()
         _CACHE.clear()
-        env = BavoEnv(task=job["task"], condition=job["condition"], compute_cvg=job["condition"] == "random")
+        env = BavoEnv(task=job["task"], condition=job["condition"], compute_cvg=job["condition"] == "random",
+                      **env_kwargs_for_policy(job["policy"]))
         _CACHE[key] = (env, make_agent(job["policy"], env))
     env, agent = _CACHE[key]
     video = Path(job["video"]) if job.get("video") else None

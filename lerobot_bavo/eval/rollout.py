@@ -54,7 +54,8 @@ class LeRobotPolicyAgent:
         cfg.device = device
         s = env.obs_settings
         env_cfg = BavoEnvConfig(task=env.task.name, condition=env.condition, image_height=s.image_height,
-                                image_width=s.image_width, n_points=s.n_points, point_frame=s.point_frame)
+                                image_width=s.image_width, n_points=s.n_points, point_frame=s.point_frame,
+                                environment_state=env.environment_state)
         self.policy = make_policy(cfg, env_cfg=env_cfg)
         self.policy.eval()
         self.pre, self.post = make_pre_post_processors(
@@ -78,6 +79,20 @@ class LeRobotPolicyAgent:
             action = self.policy.select_action(batch)
         action = self.post(action)
         return action.squeeze(0).cpu().numpy().astype(np.float64)
+
+
+def env_kwargs_for_policy(policy: str) -> dict:
+    """`BavoEnv` keyword arguments a policy needs beyond the defaults: a checkpoint whose inputs include the
+    privileged object poses (`observation.environment_state`) needs `environment_state=True`."""
+    import json
+
+    if policy in EXPERT_POLICIES:
+        return {}
+    config = Path(policy) / "config.json"
+    if not config.is_file():
+        return {}
+    inputs = json.loads(config.read_text()).get("input_features") or {}
+    return {"environment_state": True} if "observation.environment_state" in inputs else {}
 
 
 def make_agent(policy: str, env):
