@@ -140,15 +140,9 @@ _RECORDER_KEY = None
 
 
 def _init_worker() -> None:
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    try:
-        import torch
+    from lerobot_bavo.runtime import init_worker
 
-        torch.set_num_threads(1)
-    except Exception:  # torch is optional in a worker
-        pass
+    init_worker()
 
 
 def run_job(job: dict) -> dict:
@@ -471,17 +465,14 @@ class Collector:
 
     # -------------------------------------------------------------- run
     def _lock(self):
-        """An exclusive lock (a sibling file of the dataset folder) so two runs never write one dataset."""
-        import fcntl
+        """An exclusive lock on the dataset's resolved path, so two runs never write one dataset (not even
+        through a symlinked spelling of --root)."""
+        from lerobot_bavo.runtime.process import LockedError, exclusive_lock
 
-        self.root.parent.mkdir(parents=True, exist_ok=True)
-        handle = open(self.root.parent / f".{self.root.name}.bavo-collect.lock", "w")
         try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            handle.close()
-            raise CollectionError(f"another bavo-collect is writing {self.root}") from None
-        return handle
+            return exclusive_lock(self.root, "bavo-collect")
+        except LockedError as e:
+            raise CollectionError(str(e)) from None
 
     def run(self) -> dict:
         lock = self._lock()
@@ -701,7 +692,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for name, low in (("episodes", 1), ("workers", 0), ("seed", 0), ("commit_every", 1), ("n_points", 2)):
+        if getattr(args, name) < low:
+            parser.error(f"--{name.replace('_', '-')} must be >= {low}, got {getattr(args, name)}")
+    if args.root is not None and args.root.exists() and not args.root.is_dir():
+        parser.error(f"--root {args.root} exists and is not a folder")
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (LeRobot's default video codec): errors only
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("lerobot", "datasets", "libav", "huggingface_hub"):

@@ -34,8 +34,9 @@ def read_info(root: str | Path) -> dict:
         info = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"corrupted dataset metadata {path}: not valid JSON ({e})") from e
-    if not isinstance(info, dict) or "features" not in info:
-        raise ValueError(f"corrupted dataset metadata {path}: no 'features' entry")
+    if not isinstance(info, dict) or not isinstance(info.get("features"), dict):
+        raise ValueError(f"corrupted dataset metadata {path}: no 'features' object (got "
+                         f"{type(info.get('features')).__name__ if isinstance(info, dict) else type(info).__name__})")
     version = info.get("codebase_version")
     if version != CODEBASE_VERSION:
         raise ValueError(f"{path}: dataset format {version!r}, expected LeRobot {CODEBASE_VERSION!r}")
@@ -108,6 +109,7 @@ def load_bavo_dataset(repo_id: str, root: str | Path | None = None, n_points: in
         info = read_info(local)
         S.check_features(info["features"], n_points=n_points, require_teacher=require_teacher)
         check_files(local, info, check_videos=check_videos)
+        read_stats(local)
     try:
         ds = LeRobotDataset(repo_id, root=root, **kwargs)
     except (FileNotFoundError, ValueError):
@@ -118,14 +120,47 @@ def load_bavo_dataset(repo_id: str, root: str | Path | None = None, n_points: in
     return ds
 
 
+def read_stats(root: str | Path) -> dict:
+    """`meta/stats.json` of a local dataset ({} if absent), with errors naming the file for bad JSON or NaN.
+
+    NaN statistics would make every normalised value NaN and a training run learn nothing, silently."""
+    import math
+
+    path = Path(root) / "meta" / "stats.json"
+    if not path.is_file():
+        return {}
+    try:
+        stats = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"corrupted dataset statistics {path}: not valid JSON ({e})") from e
+    if not isinstance(stats, dict):
+        raise ValueError(f"corrupted dataset statistics {path}: expected an object, got {type(stats).__name__}")
+
+    def has_nan(v) -> bool:
+        if isinstance(v, list):
+            return any(has_nan(x) for x in v)
+        return isinstance(v, float) and math.isnan(v)
+
+    bad = sorted(f"{k}.{name}" for k, d in stats.items() if isinstance(d, dict)
+                 for name, v in d.items() if name in ("min", "max", "mean", "std") and has_nan(v))
+    if bad:
+        raise ValueError(f"dataset statistics {path} hold NaN in {bad[:6]}{' ...' if len(bad) > 6 else ''}; "
+                         "recompute them (or re-collect the episodes whose features are NaN)")
+    return stats
+
+
 def read_sidecar(root: str | Path) -> dict | None:
+    """The `bavo-collect` record of a dataset (None if absent); errors name the file if it is malformed."""
     path = Path(root) / SIDECAR
     if not path.is_file():
         return None
     try:
-        return json.loads(path.read_text())
+        record = json.loads(path.read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"corrupted collection record {path}: {e}") from e
+    if not isinstance(record, dict) or not isinstance(record.get("settings"), dict):
+        raise ValueError(f"corrupted collection record {path}: no 'settings' object")
+    return record
 
 
 # ------------------------------------------------------------------ statistics

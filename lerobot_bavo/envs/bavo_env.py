@@ -183,6 +183,7 @@ class BavoEnv(gym.Env):
         self._cvg = CVGAccumulator()
         self._step_visibility: float | None = None
         self._episode_summary: dict | None = None
+        self._ended = False
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -205,6 +206,7 @@ class BavoEnv(gym.Env):
         self._events = []
         self._cvg = CVGAccumulator()
         self._episode_summary = None
+        self._ended = False
         if self.occluded:
             # Drawn after the task's reset, so a seed gives the same layout under every condition.
             self._schedule = OcclusionSchedule.sample(self.condition, self.task.stage_transitions, self.np_random)
@@ -212,6 +214,12 @@ class BavoEnv(gym.Env):
         return self._observation(), self._info()
 
     def step(self, action):
+        """One 25 Hz control step. After an episode ended (`terminated` or `truncated` was returned), stepping
+        again raises `RuntimeError` until `reset()`: gymnasium leaves that call undefined, and continuing would
+        run past the step limit and report milestones of a finished episode (gymnasium's vector envs reset
+        automatically, so LeRobot's rollouts never do it)."""
+        if self._ended:
+            raise RuntimeError("the episode has ended (terminated or truncated); call reset() before step()")
         self.simulate(action)
         self._flags = self.task.evaluate(self.model, self.data)
         depth = self._tracker.update(self._flags, self._elapsed)
@@ -220,11 +228,15 @@ class BavoEnv(gym.Env):
         if self.occluded:
             self._update_occlusion()
         if terminated or truncated:
+            self._ended = True
             self._episode_summary = self._cvg.close_episode()
         return self._observation(), depth / 5.0, terminated, truncated, self._info()
 
     def render(self):
-        """Third-person view (left) beside the active-camera view (right), HWC uint8."""
+        """Third-person view (left) beside the active-camera view (right), HWC uint8; None when the env
+        was made with `render_mode=None` (gymnasium's convention: nothing is rendered)."""
+        if self.render_mode is None:
+            return None
         h = self.render_height
         w = 4 * h // 3
         if self._video_renderer is None:

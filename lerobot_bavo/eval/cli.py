@@ -9,7 +9,13 @@ Writes, under --output-dir:
   videos/        the first --videos episodes of every cell, occlusion events marked in red.
 
 Resumable: finished episodes (and so finished cells) found in --output-dir are kept, and only
-missing ones run. Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
+missing ones run; the run is keyed on a digest of the checkpoint's files, so a checkpoint replaced
+at the same path is refused instead of mixed in. A torn last line of episodes.jsonl (a full disk,
+a kill mid-write) is dropped with a warning; one run at a time may write an output folder.
+
+Safety: checkpoints name processor classes that LeRobot imports. Only LeRobot's and this
+package's processor steps are loaded; --trust-remote-code lifts that for checkpoints you trust.
+The env is built with the point count, image size and object-pose input the checkpoint records. Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
 (the privileged scripted expert with camera recovery) or `expert-frozen-camera` (same
 manipulation, camera arm never moves; its CVG is exactly 0 by construction).
 
@@ -33,14 +39,9 @@ RESULTS_VERSION = 1
 
 
 def _worker_init() -> None:
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    try:
-        import torch
+    from lerobot_bavo.runtime import init_worker
 
-        torch.set_num_threads(1)
-    except ImportError:  # torch is a dependency; keep workers usable without it for experts
-        pass
+    init_worker()
 
 
 _CACHE: dict = {}
@@ -58,7 +59,7 @@ def _run_job(job: dict) -> dict:
         _CACHE.clear()
         env = BavoEnv(task=job["task"], condition=job["condition"], compute_cvg=job["condition"] == "random",
                       **env_kwargs_for_policy(job["policy"]))
-        _CACHE[key] = (env, make_agent(job["policy"], env))
+        _CACHE[key] = (env, make_agent(job["policy"], env, trust_remote_code=job.get("trust_remote_code", False)))
     env, agent = _CACHE[key]
     video = Path(job["video"]) if job.get("video") else None
     t0 = time.perf_counter()
@@ -102,14 +103,47 @@ def markdown_table(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
+    """Finished episodes of `episodes.jsonl`, keyed (task, condition, seed).
+
+    Every record is written as one line ending in a newline, so a last line without one is a torn write
+    (a full disk, a kill mid-write): it is dropped (the file is truncated to the last complete line) with
+    a warning, and its episode runs again. A line that does not parse anywhere else is corruption: an
+    error naming the file and the line."""
+    import sys
+
+    done: dict[tuple[str, str, int], dict] = {}
+    if not log_path.exists():
+        return done
+    data = log_path.read_bytes()
+    complete = data[: data.rfind(b"\n") + 1]
+    if len(complete) < len(data):
+        print(f"bavo-eval: warning: dropping an incomplete last line of {log_path} ({len(data) - len(complete)} "
+              "bytes, a torn write); its episode runs again", file=sys.stderr)
+        with open(log_path, "r+b") as fh:
+            fh.truncate(len(complete))
+    for number, line in enumerate(complete.decode("utf-8", errors="replace").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            r = json.loads(line)
+            done[(r["task"], r["condition"], r["seed"])] = r
+        except (json.JSONDecodeError, KeyError, TypeError) as e:
+            raise SystemExit(f"bavo-eval: {log_path} line {number} is corrupt ({e}); remove that line (its "
+                             "episode then runs again) or use another --output-dir") from None
+    return done
+
+
 def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
-             output_dir: Path, workers: int = 1, videos: int = 1) -> dict:
+             output_dir: Path, workers: int = 1, videos: int = 1, trust_remote_code: bool = False) -> dict:
     """Run (or resume) the evaluation and write results.json / results.md; returns the results."""
     from tqdm import tqdm
 
+    from lerobot_bavo.checkpoints import CheckpointMismatchError, check_processor_steps, checkpoint_digest
     from lerobot_bavo.envs.bavo_env import CONDITIONS
     from lerobot_bavo.envs.tasks import TASK_NAMES, TASKS
     from lerobot_bavo.eval.rollout import EXPERT_POLICIES
+    from lerobot_bavo.runtime.process import LockedError, exclusive_lock
 
     for t in tasks:
         if t not in TASK_NAMES:
@@ -122,25 +156,47 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
         raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
                          "nor a LeRobot checkpoint directory containing config.json")
-    policy_id = policy if policy in EXPERT_POLICIES else str(Path(policy).resolve())
+    if output_dir.exists() and not output_dir.is_dir():
+        raise SystemExit(f"bavo-eval: --output-dir {output_dir} exists and is not a folder")
+    settings: dict = {"seed": seed}
+    if policy in EXPERT_POLICIES:
+        policy_id = settings["policy"] = policy
+    else:
+        policy_id = settings["policy"] = str(Path(policy).resolve())
+        try:  # refuse untrusted processor steps here, before any worker imports them
+            check_processor_steps(policy, trust_remote_code=trust_remote_code)
+        except (ValueError, CheckpointMismatchError) as e:
+            raise SystemExit(f"bavo-eval: {e}") from None
+        settings["checkpoint_sha256"] = checkpoint_digest(policy)
 
     output_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        lock = exclusive_lock(output_dir, "bavo-eval")
+    except LockedError as e:
+        raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
+    try:
+        return _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, seed, output_dir,
+                                workers, videos, trust_remote_code, tqdm)
+    finally:
+        lock.close()
+
+
+def _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, seed, output_dir, workers, videos,
+                     trust_remote_code, tqdm) -> dict:
     log_path = output_dir / "episodes.jsonl"
     settings_path = output_dir / "run.json"
-    settings = {"policy": policy_id, "seed": seed}
     if settings_path.exists():
-        previous = json.loads(settings_path.read_text())
+        try:
+            previous = json.loads(settings_path.read_text())
+        except json.JSONDecodeError as e:
+            raise SystemExit(f"bavo-eval: {settings_path} is not valid JSON ({e}); use another --output-dir") from None
         if previous != settings:
-            raise SystemExit(f"bavo-eval: {output_dir} holds a run with different settings {previous}; "
-                             "use another --output-dir")
+            raise SystemExit(f"bavo-eval: {output_dir} holds a run with different settings {previous} (now "
+                             f"{settings}: another checkpoint, or the same path with other weights); use another "
+                             "--output-dir")
     settings_path.write_text(json.dumps(settings))
 
-    done: dict[tuple[str, str, int], dict] = {}
-    if log_path.exists():
-        for line in log_path.read_text().splitlines():
-            if line.strip():
-                r = json.loads(line)
-                done[(r["task"], r["condition"], r["seed"])] = r
+    done = read_episode_log(log_path)
     jobs = []
     for task in tasks:
         for cond in conditions:
@@ -149,7 +205,8 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
                 if (task, cond, s) in done:
                     continue
                 video = str(output_dir / "videos" / f"{task}_{cond}_seed{s}.mp4") if i < videos else None
-                jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video})
+                jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video,
+                             "trust_remote_code": trust_remote_code})
     if done:
         print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
 
@@ -198,11 +255,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--output-dir", type=Path, required=True, help="where results and videos go")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
     parser.add_argument("--videos", type=int, default=1, help="episodes recorded per cell (default 1)")
+    parser.add_argument("--trust-remote-code", action="store_true",
+                        help="load processor steps that are neither LeRobot's nor lerobot_bavo's (they run "
+                             "arbitrary code when loaded: only for checkpoints you trust)")
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error("--episodes must be >= 1")
+    for name, low in (("episodes", 1), ("seed", 0), ("workers", 1), ("videos", 0)):
+        if getattr(args, name) < low:
+            parser.error(f"--{name} must be >= {low}, got {getattr(args, name)}")
     evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
-             args.output_dir, workers=args.workers, videos=args.videos)
+             args.output_dir, workers=args.workers, videos=args.videos, trust_remote_code=args.trust_remote_code)
 
 
 if __name__ == "__main__":

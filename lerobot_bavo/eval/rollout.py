@@ -34,29 +34,51 @@ class LeRobotPolicyAgent:
 
     Loading follows `lerobot-eval`: the policy config and weights from the directory, the saved
     pre/post-processors (normalisation), and LeRobot's own observation conversion
-    (`preprocess_observation`), so results match `lerobot-eval --policy.path=...`.
+    (`preprocess_observation`), so results match `lerobot-eval --policy.path=...`. Before that,
+    `lerobot_bavo.checkpoints` refuses processor steps that are neither LeRobot's nor ours (unless
+    `trust_remote_code`), refuses a checkpoint whose recorded inputs (points, image size, object poses)
+    differ from the env's, and after it refuses weights with missing or unexpected tensors.
     """
 
-    def __init__(self, path: str | Path, env, device: str = "cpu"):
+    def __init__(self, path: str | Path, env, device: str = "cpu", trust_remote_code: bool = False):
         import torch
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import make_policy, make_pre_post_processors
 
+        from lerobot_bavo.checkpoints import (
+            CheckpointMismatchError,
+            check_processor_steps,
+            check_weights_complete,
+            env_settings,
+            mismatches,
+        )
         from lerobot_bavo.envs.configs import BavoEnvConfig
 
         path = Path(path)
         if not (path / "config.json").is_file():
             raise FileNotFoundError(f"{path} is not a LeRobot checkpoint directory (no config.json); "
                                     "pass .../checkpoints/<step>/pretrained_model")
+        check_processor_steps(path, trust_remote_code=trust_remote_code)
+        s = env.obs_settings
+        actual = {"n_points": s.n_points, "image_height": s.image_height, "image_width": s.image_width,
+                  "environment_state": env.environment_state}
+        wrong = mismatches(env_settings(path), actual)
+        if wrong:
+            raise CheckpointMismatchError(f"the checkpoint at {path} was trained on other observations than this "
+                                          "env gives: " + "; ".join(wrong))
         self._torch = torch
-        cfg = PreTrainedConfig.from_pretrained(path)
+        try:
+            cfg = PreTrainedConfig.from_pretrained(path)
+        except Exception as e:  # draccus reports an unknown policy type as a bare "invalid choice"
+            raise CheckpointMismatchError(f"{path / 'config.json'} cannot be read as a LeRobot policy config "
+                                          f"(is its 'type' a registered policy?): {e}") from e
         cfg.pretrained_path = path
         cfg.device = device
-        s = env.obs_settings
         env_cfg = BavoEnvConfig(task=env.task.name, condition=env.condition, image_height=s.image_height,
                                 image_width=s.image_width, n_points=s.n_points, point_frame=s.point_frame,
                                 environment_state=env.environment_state)
         self.policy = make_policy(cfg, env_cfg=env_cfg)
+        check_weights_complete(self.policy, path)
         self.policy.eval()
         self.pre, self.post = make_pre_post_processors(
             policy_cfg=cfg, pretrained_path=str(path),
@@ -82,25 +104,22 @@ class LeRobotPolicyAgent:
 
 
 def env_kwargs_for_policy(policy: str) -> dict:
-    """`BavoEnv` keyword arguments a policy needs beyond the defaults: a checkpoint whose inputs include the
-    privileged object poses (`observation.environment_state`) needs `environment_state=True`."""
-    import json
-
-    if policy in EXPERT_POLICIES:
+    """`BavoEnv` keyword arguments that make the env give a checkpoint the observations it was trained on:
+    the point count, image size and privileged object poses its input features record
+    (`lerobot_bavo.checkpoints.env_settings`). Experts need none."""
+    if policy in EXPERT_POLICIES or not (Path(policy) / "config.json").is_file():
         return {}
-    config = Path(policy) / "config.json"
-    if not config.is_file():
-        return {}
-    inputs = json.loads(config.read_text()).get("input_features") or {}
-    return {"environment_state": True} if "observation.environment_state" in inputs else {}
+    from lerobot_bavo.checkpoints import env_settings
+
+    return env_settings(policy)
 
 
-def make_agent(policy: str, env):
+def make_agent(policy: str, env, trust_remote_code: bool = False):
     if policy == "expert":
         return ExpertAgent(env)
     if policy == "expert-frozen-camera":
         return ExpertAgent(env, frozen_camera=True)
-    return LeRobotPolicyAgent(policy, env)
+    return LeRobotPolicyAgent(policy, env, trust_remote_code=trust_remote_code)
 
 
 def mark_event(frame: np.ndarray, width: int = 6) -> np.ndarray:

@@ -179,6 +179,10 @@ class AfarPolicy(ManiFlowPolicy):
         b, n = h_cur.shape[0], cfg.num_points
         z0 = _teacher_tokens(batch[OBS_TEACHER_Z0], b, n, OBS_TEACHER_Z0)[:, : h_cur.shape[1]]
         zf = _teacher_tokens(batch[OBS_TEACHER_ZF], b, n, OBS_TEACHER_ZF)[:, : h_cur.shape[1]]
+        for key, z in ((OBS_TEACHER_Z0, z0), (OBS_TEACHER_ZF, zf)):
+            if not bool(torch.isfinite(z).all()):
+                raise ValueError(f"'{key}' holds NaN or inf in this batch: the dataset's teacher cache is broken "
+                                 "(recompute it with lerobot_bavo.teacher, or train without the relational losses)")
         n = h_cur.shape[1]
         zero = h_cur.new_zeros(())
         idx = None

@@ -113,8 +113,13 @@ class FeatureLayoutProcessorStep(ObservationProcessorStep):
             while trailing < size and m < value.ndim:
                 m += 1
                 trailing *= value.shape[-m]
-            if m and trailing == size:
-                observation[key] = value.reshape(*value.shape[: value.ndim - m], *shape)
+            if not (m and trailing == size):
+                raise ValueError(
+                    f"'{key}' has shape {tuple(value.shape)}, but the policy was trained on {list(shape)} per step "
+                    f"({size} values): the observation does not match the checkpoint (e.g. another point count or "
+                    "image size); build the env with the checkpoint's settings"
+                )
+            observation[key] = value.reshape(*value.shape[: value.ndim - m], *shape)
         return observation
 
     def get_config(self) -> dict[str, Any]:
@@ -144,6 +149,13 @@ def make_maniflow_pre_post_processors(
     Returns:
         The pre-processor and post-processor pipelines.
     """
+    if dataset_stats is not None:
+        bad = sorted(f"{key}.{name}" for key, st in dataset_stats.items() if key in config.input_features
+                     or key in config.output_features for name, v in st.items()
+                     if name in ("min", "max", "mean", "std") and bool(torch.isnan(torch.as_tensor(v)).any()))
+        if bad:
+            raise ValueError(f"dataset statistics hold NaN in {bad}: every normalised input would be NaN; "
+                             "recompute the dataset's stats (meta/stats.json)")
     if dataset_stats is not None and config.uses_point_cloud and OBS_POINT_CLOUD in dataset_stats:
         dataset_stats = dict(dataset_stats)
         dataset_stats[OBS_POINT_CLOUD] = per_channel_point_stats(

@@ -1,0 +1,69 @@
+"""Worker processes that die with their parent, and one writer per output folder.
+
+Why: after a `kill -9` of `bavo-eval` or `bavo-collect`, their pool workers (each holding a MuJoCo
+model, GL contexts and torch: ~0.6-1.2 GB) were re-parented to PID 1 and lived on, and so did the
+multiprocessing resource tracker, whose pipe they kept open. Each worker now watches its parent and
+exits within a second of losing it (a parent-death signal alone is tied to the thread that spawned
+the worker and would also fire when a short-lived spawning thread ends, so a poll is used). Two runs on one output folder (or one dataset, reached
+through a symlink) corrupted each other; an advisory lock on the *resolved* path refuses the second.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+POLL_S = 0.5
+
+
+def exit_with_parent(poll_s: float = POLL_S) -> None:
+    """In a worker process: exit at once (`os._exit`) when the parent process is gone (it is re-parented)."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(poll_s)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+def init_worker() -> None:
+    """Pool-worker initializer: one BLAS / OpenMP / torch thread (2-core machines), headless GL, and exit
+    with the parent."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    exit_with_parent()
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # torch is a dependency; keep workers usable without it for experts
+        pass
+
+
+class LockedError(RuntimeError):
+    """Another run holds the lock of this folder."""
+
+
+def exclusive_lock(folder: str | Path, tool: str):
+    """An exclusive, non-blocking advisory lock for writing `folder`, keyed on its resolved real path.
+
+    The lock file sits beside the folder (`.<name>.<tool>.lock` in its resolved parent), so every spelling
+    of the same folder (symlinks, `..`) gets the same lock. Returns the open handle; closing it (or the
+    process dying) releases the lock. Raises `LockedError` if another process holds it."""
+    import fcntl
+
+    real = Path(folder).resolve()
+    real.parent.mkdir(parents=True, exist_ok=True)
+    handle = open(real.parent / f".{real.name}.{tool}.lock", "w")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        raise LockedError(f"another {tool} is writing {real}") from None
+    return handle
