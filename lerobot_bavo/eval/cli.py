@@ -219,7 +219,9 @@ def _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, s
                     log.flush()
                     bar.update(1)
         else:
-            _worker_init()
+            from lerobot_bavo.runtime import limit_threads
+
+            limit_threads()  # in this process: no exit-with-parent watch (see runtime.process.init_worker)
             for job in jobs:
                 record = _run_job(job)
                 done[(record["task"], record["condition"], record["seed"])] = record

@@ -31,19 +31,24 @@ def exit_with_parent(poll_s: float = POLL_S) -> None:
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
-def init_worker() -> None:
-    """Pool-worker initializer: one BLAS / OpenMP / torch thread (2-core machines), headless GL, and exit
-    with the parent."""
+def limit_threads() -> None:
+    """One BLAS / OpenMP / torch thread per process (2-core machines) and headless GL."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("MUJOCO_GL", "egl")
-    exit_with_parent()
     try:
         import torch
 
         torch.set_num_threads(1)
     except ImportError:  # torch is a dependency; keep workers usable without it for experts
         pass
+
+
+def init_worker() -> None:
+    """Pool-worker initializer: `limit_threads` and `exit_with_parent`. Only for pool workers: in the main
+    process the watch would end a run started with nohup as soon as its shell exits."""
+    limit_threads()
+    exit_with_parent()
 
 
 class LockedError(RuntimeError):
