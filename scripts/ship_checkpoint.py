@@ -1,0 +1,99 @@
+"""Copy a trained `lerobot-train` checkpoint into the repository with a model card (README.md).
+
+The card is written from what the run and its evaluation recorded (train_config.json, the training
+log's wall time, bavo-eval's results.json), so its numbers are the measured ones.
+
+    python scripts/ship_checkpoint.py --run outputs/train/afar_s1000 --step 006000 \\
+        --eval outputs/eval/afar_s1000_006000/results.json --output checkpoints/afar_cube_handoff
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+FILES = ("config.json", "model.safetensors", "train_config.json")
+MAX_BYTES = 25 * 1024 * 1024
+
+
+def card(cfg: dict, train: dict, results: dict, wall_min: float | None, name: str) -> str:
+    pol, ds = train["policy"], train["dataset"]
+    steps, batch = train["steps"], train["batch_size"]
+    table = ["| task | condition | episodes | SR (%) | TPS (%) |", "|---|---|---|---|---|"]
+    for key, cell in sorted(results["cells"].items()):
+        task, cond = key.split("/")
+        table.append(f"| {task} | {cond} | {cell['n_episodes']} | {cell['sr']:.1f} | {cell['tps']:.1f} |")
+    wall = f"{wall_min:.0f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
+    return f"""---
+library_name: lerobot
+tags: [lerobot, robotics, bavo-bench, a-far, active-vision]
+---
+
+# {name}: A-FAR on BAVO-Bench Cube Handoff (CPU scale)
+
+A-FAR (ManiFlow + WorldQueryFormer future tokens + gated fusion + relational distillation) trained with
+`lerobot-train` on 100 scripted Stage-occlusion demonstrations of `cube_handoff`, at the `{pol['preset']}`
+size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and docs/DESIGN.md for every size
+that differs from the paper, and why). Inputs: `observation.point_cloud` (256 coloured points in the robot
+base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample) and
+`observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
+{pol['n_action_steps']} executed per call. Teacher features are training-only.
+
+## Data
+`bavo-collect --task cube_handoff --condition stage --episodes 100 --repo-id {ds['repo_id'].removesuffix('_points')}
+--root outputs/datasets/bavo_cube_handoff --workers 2` (seeds 0-99, 42,729 frames, simulator-exact teacher),
+then its `points` view (`python -m lerobot_bavo.datasets.views --view points`).
+
+## Training
+`bash scripts/train_cube_handoff.sh afar` (STEPS={steps}, BATCH={batch}), i.e. `lerobot-train --policy.type=afar
+--policy.preset={pol['preset']} --batch_size={batch} --steps={steps} --seed={train['seed']}` on the points view.
+Budget: {steps} steps x batch {batch} = {steps * batch:,} samples ({steps * batch / 42729:.1f} epochs;
+the paper: 100K x 64 = 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine schedule with
+{pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inference.
+
+## Results (bavo-eval, held-out seeds from {results.get('seed', 1000)}; demonstrations used 0-99)
+{chr(10).join(table)}
+
+Reproduce: `bavo-eval --policy checkpoints/afar_cube_handoff --tasks cube_handoff --conditions clean,stage
+--episodes 20 --seed 1000`.
+
+## Use
+- `bavo-eval --policy PATH`, `bash scripts/demo.sh` (this checkpoint is its default), or
+  `lerobot-eval --policy.path=PATH --env.type=bavo --env.task=cube_handoff --env.condition=stage`.
+- Push to the Hub: `huggingface-cli login`, then
+  `huggingface-cli upload <user>/afar_bavo_cube_handoff checkpoints/afar_cube_handoff .`;
+  load with `--policy.path=<user>/afar_bavo_cube_handoff`.
+- Safety: a checkpoint's processor files name Python classes that LeRobot imports; our loaders accept
+  only LeRobot's and this package's processor steps (see the README's Safety paragraph).
+"""
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--run", type=Path, required=True, help="lerobot-train --output_dir")
+    p.add_argument("--step", default="last", help="checkpoint step folder (e.g. 006000) or last")
+    p.add_argument("--eval", type=Path, required=True, help="bavo-eval results.json of this checkpoint")
+    p.add_argument("--output", type=Path, default=Path("checkpoints/afar_cube_handoff"))
+    p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
+    args = p.parse_args()
+    src = args.run / "checkpoints" / args.step / "pretrained_model"
+    if not (src / "config.json").is_file():
+        raise SystemExit(f"no checkpoint at {src}")
+    args.output.mkdir(parents=True, exist_ok=True)
+    names = list(FILES) + [f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))]
+    for name in names:
+        shutil.copy2(src / name, args.output / name)
+    total = sum((args.output / n).stat().st_size for n in names)
+    if total > MAX_BYTES:
+        raise SystemExit(f"{args.output} is {total / 2**20:.1f} MiB > 25 MiB")
+    cfg = json.loads((src / "config.json").read_text())
+    train = json.loads((src / "train_config.json").read_text())
+    results = json.loads(args.eval.read_text())
+    (args.output / "README.md").write_text(card(cfg, train, results, args.wall_min, args.output.name))
+    print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
+
+
+if __name__ == "__main__":
+    main()
