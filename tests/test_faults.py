@@ -332,6 +332,22 @@ def _children(pid: int) -> set[int]:
     return {int(p) for p in out.split()}
 
 
+def _is_worker(pid: int) -> bool:
+    try:
+        return "spawn_main" in Path(f"/proc/{pid}/cmdline").read_text() or "fork" in Path(f"/proc/{pid}/cmdline").read_text()
+    except OSError:
+        return False
+
+
+def _watching(pid: int) -> bool:
+    from lerobot_bavo.runtime.process import WATCH_THREAD_NAME
+
+    try:
+        return any((t / "comm").read_text().strip() == WATCH_THREAD_NAME for t in Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return False
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -358,7 +374,13 @@ def test_kill_9_leaves_no_worker_behind(tool, tmp_path):
             time.sleep(1.0)
             workers = _children(proc.pid)
         assert len(workers) >= 2, f"{tool} started no workers"
-        time.sleep(3.0)  # let them get into their episodes
+        # A spawned worker imports for a while before its initializer (which starts the watch) runs; wait until
+        # every worker runs its watch thread (named bavo-watch), i.e. it is set up and working on episodes.
+        deadline = time.time() + 240
+        while time.time() < deadline and sum(_watching(p) for p in _children(proc.pid) if _is_worker(p)) < 2:
+            time.sleep(1.0)
+        time.sleep(2.0)
+        workers = _children(proc.pid)
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         deadline = time.time() + 5.0

@@ -139,10 +139,10 @@ _RECORDER = None
 _RECORDER_KEY = None
 
 
-def _init_worker() -> None:
+def _init_worker(parent: int | None = None) -> None:
     from lerobot_bavo.runtime import init_worker
 
-    init_worker()
+    init_worker(parent)
 
 
 def run_job(job: dict) -> dict:
@@ -568,7 +568,7 @@ class Collector:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         return cf.ProcessPoolExecutor(max_workers=self.cfg.workers, mp_context=multiprocessing.get_context("spawn"),
-                                      initializer=_init_worker)
+                                      initializer=_init_worker, initargs=(os.getpid(),))
 
     def _finish(self, run_stats: dict, wall: float) -> dict:
         from lerobot_bavo.datasets.card import write_card

@@ -38,10 +38,10 @@ from pathlib import Path
 RESULTS_VERSION = 1
 
 
-def _worker_init() -> None:
+def _worker_init(parent: int | None = None) -> None:
     from lerobot_bavo.runtime import init_worker
 
-    init_worker()
+    init_worker(parent)
 
 
 _CACHE: dict = {}
@@ -212,7 +212,8 @@ def _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, s
 
     with open(log_path, "a") as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
         if workers > 1 and jobs:
-            with ProcessPoolExecutor(max_workers=workers, initializer=_worker_init) as pool:
+            with ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
+                                     initargs=(os.getpid(),)) as pool:
                 for record in pool.map(_run_job, jobs):
                     done[(record["task"], record["condition"], record["seed"])] = record
                     log.write(json.dumps(record) + "\n")

@@ -4,7 +4,9 @@ Why: after a `kill -9` of `bavo-eval` or `bavo-collect`, their pool workers (eac
 model, GL contexts and torch: ~0.6-1.2 GB) were re-parented to PID 1 and lived on, and so did the
 multiprocessing resource tracker, whose pipe they kept open. Each worker now watches its parent and
 exits within a second of losing it (a parent-death signal alone is tied to the thread that spawned
-the worker and would also fire when a short-lived spawning thread ends, so a poll is used). Two runs on one output folder (or one dataset, reached
+the worker and would also fire when a short-lived spawning thread ends, so a poll is used). The watch
+starts in the pool initializer, so a spawned worker killed while it is still importing (seconds on an
+idle machine, minutes on a saturated one) exits as soon as its imports finish. Two runs on one output folder (or one dataset, reached
 through a symlink) corrupted each other; an advisory lock on the *resolved* path refuses the second.
 """
 
@@ -16,13 +18,26 @@ import time
 from pathlib import Path
 
 POLL_S = 0.5
+WATCH_THREAD_NAME = "bavo-watch"
 
 
-def exit_with_parent(poll_s: float = POLL_S) -> None:
-    """In a worker process: exit at once (`os._exit`) when the parent process is gone (it is re-parented)."""
-    parent = os.getppid()
+def exit_with_parent(parent: int | None = None, poll_s: float = POLL_S) -> None:
+    """In a worker process: exit at once (`os._exit`) when the parent process `parent` is gone.
+
+    `parent` is the pid the parent passed in (pool `initargs`): a spawned worker imports for seconds before
+    its initializer runs, and a parent killed meanwhile would otherwise leave it re-parented already, with
+    nothing left to compare against."""
+    parent = os.getppid() if parent is None else int(parent)
+    if os.getppid() != parent:
+        os._exit(1)
 
     def watch() -> None:
+        try:  # name the OS thread (visible in /proc/<pid>/task/*/comm) so tools and tests can see the watch
+            import ctypes
+
+            ctypes.CDLL("libc.so.6").prctl(15, WATCH_THREAD_NAME.encode(), 0, 0, 0)  # PR_SET_NAME
+        except (OSError, AttributeError):
+            pass
         while True:
             time.sleep(poll_s)
             if os.getppid() != parent:
@@ -44,11 +59,12 @@ def limit_threads() -> None:
         pass
 
 
-def init_worker() -> None:
-    """Pool-worker initializer: `limit_threads` and `exit_with_parent`. Only for pool workers: in the main
-    process the watch would end a run started with nohup as soon as its shell exits."""
+def init_worker(parent: int | None = None) -> None:
+    """Pool-worker initializer (`initializer=init_worker, initargs=(os.getpid(),)`): `limit_threads` and
+    `exit_with_parent(parent)`. Only for pool workers: in the main process the watch would end a run started
+    with nohup as soon as its shell exits."""
+    exit_with_parent(parent)
     limit_threads()
-    exit_with_parent()
 
 
 class LockedError(RuntimeError):
