@@ -198,3 +198,14 @@ def test_lerobot_eval_end_to_end(tmp_path):
     assert 0.0 <= overall["pc_success"] <= 100.0
     assert 0.0 <= overall["avg_max_reward"] <= 1.0
     assert info["per_task"][0]["task_group"] == "bavo"
+
+
+def test_config_with_privileged_object_poses():
+    """`environment_state=True` adds the object poses (7 per object) as an ENV feature mapped to
+    observation.environment_state, and passes the flag to the env."""
+    cfg = BavoEnvConfig(**SMALL, environment_state=True)
+    assert set(cfg.features) == set(cfg.features_map)
+    assert cfg.features["environment_state"].shape == (14,)  # cube + plate
+    assert cfg.gym_kwargs["environment_state"] is True
+    feats = env_to_policy_features(cfg)
+    assert feats["observation.environment_state"].type is FeatureType.ENV

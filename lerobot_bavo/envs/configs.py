@@ -86,7 +86,6 @@ class BavoEnvConfig(EnvConfig):
             ENV_IMAGE_KEY: OBS_IMAGE_ACTIVE,
             ENV_POINT_CLOUD_KEY: OBS_POINT_CLOUD,
             ENV_POINT_PIXELS_KEY: OBS_POINT_PIXELS,
-            ENV_ENV_STATE_KEY: OBS_ENV_STATE,
         }
     )
 
@@ -118,6 +117,7 @@ class BavoEnvConfig(EnvConfig):
         self.features[ENV_POINT_CLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 6))
         self.features[ENV_POINT_PIXELS_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 2))
         if self.environment_state:
+            self.features_map[ENV_ENV_STATE_KEY] = OBS_ENV_STATE
             self.features[ENV_ENV_STATE_KEY] = PolicyFeature(
                 type=FeatureType.ENV, shape=(environment_state_dim(self.task),))
 
