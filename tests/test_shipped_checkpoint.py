@@ -1,0 +1,59 @@
+"""The A-FAR checkpoint shipped in `checkpoints/afar_cube_handoff` (the demo's policy) loads in both evaluators
+and acts: a smoke test (finite actions for a few steps), not an SR assertion; SR is in its model card."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from lerobot_bavo.demo import SHIPPED_CHECKPOINT
+
+
+def test_shipped_checkpoint_is_complete_small_and_documented():
+    names = {p.name for p in SHIPPED_CHECKPOINT.iterdir()}
+    assert {"config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json",
+            "README.md", "train_config.json"} <= names
+    assert sum(p.stat().st_size for p in SHIPPED_CHECKPOINT.iterdir()) <= 25 * 1024 * 1024
+    cfg = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
+    assert cfg["type"] == "afar" and not any(k.startswith("observation.teacher") for k in cfg["input_features"])
+    card = (SHIPPED_CHECKPOINT / "README.md").read_text()
+    assert "bavo-eval" in card and "huggingface-cli upload" in card and "SR (%)" in card
+
+
+def test_shipped_checkpoint_acts_in_bavo_eval_agent_under_stage_occlusion():
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent
+
+    env = BavoEnv("cube_handoff", "stage", render_mode=None, **env_kwargs_for_policy(str(SHIPPED_CHECKPOINT)))
+    try:
+        agent = make_agent(str(SHIPPED_CHECKPOINT), env)
+        obs, info = env.reset(seed=1000)
+        agent.reset()
+        start = obs["agent_pos"].copy()
+        for _ in range(10):
+            action = agent.act(obs, info)
+            assert action.shape == (21,) and np.isfinite(action).all()
+            obs, _, terminated, truncated, info = env.step(action)
+            assert not (terminated or truncated)
+        assert not np.allclose(obs["agent_pos"], start)  # it moves
+    finally:
+        env.close()
+
+
+def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path):
+    exe = Path(sys.executable).with_name("lerobot-eval")
+    env = dict(os.environ, HF_HUB_OFFLINE="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
+               MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    proc = subprocess.run([str(exe), f"--policy.path={SHIPPED_CHECKPOINT}", "--policy.device=cpu", "--env.type=bavo",
+                           "--env.task=cube_handoff", "--env.condition=stage", "--env.episode_length=8",
+                           "--eval.n_episodes=1", "--eval.batch_size=1", "--eval.use_async_envs=false",
+                           f"--output_dir={tmp_path / 'eval'}"],
+                          capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
