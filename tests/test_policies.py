@@ -108,6 +108,22 @@ def fixed_seed_loss(policy, batch, seed: int = 123, reps: int = 4) -> float:
         return sum(policy.forward(batch)[0].item() for _ in range(reps)) / reps
 
 
+def fit(policy, batch, steps: int, lr: float = 5e-3) -> tuple[float, float, dict]:
+    """Adam on one batch for `steps` steps (EMA updated each step); (loss before, loss after, last info)."""
+    opt = torch.optim.Adam(policy.get_optim_params(), lr=lr)
+    start = fixed_seed_loss(policy, batch)
+    policy.train()
+    info = {}
+    for _ in range(steps):
+        loss, info = policy.forward(batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        policy.update()
+        assert torch.isfinite(loss)
+    return start, fixed_seed_loss(policy, batch), info
+
+
 @pytest.mark.parametrize("make", [make_maniflow, make_afar], ids=["maniflow", "afar"])
 def test_overfits_one_batch(make):
     torch.manual_seed(0)
@@ -118,16 +134,7 @@ def test_overfits_one_batch(make):
     # pose, so the chunk is a function of the observation (random chunks take thousands of steps to memorise).
     s, h = batch[STATE][:, -1, None], torch.linspace(0, 1, 16)[None, :, None]
     batch[ACT] = (1 - h) * s + h * s.roll(1, dims=-1)
-    opt = torch.optim.Adam(policy.get_optim_params(), lr=5e-3)
-    start = fixed_seed_loss(policy, batch)
-    for _ in range(200):
-        loss, info = policy.forward(batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        policy.update()
-        assert torch.isfinite(loss)
-    end = fixed_seed_loss(policy, batch)
+    start, end, info = fit(policy, batch, 200)
     assert end < 0.3 * start, (start, end)
     assert {"loss_fm", "loss_ct", "loss"} <= set(info)
     if isinstance(policy, AfarPolicy):
@@ -553,16 +560,8 @@ def test_privileged_state_maniflow_tokens_objects_trains_and_acts():
     batch = {ENV: torch.rand(8, 2, 14, generator=g) * 2 - 1, STATE: torch.rand(8, 2, STATE_DIM, generator=g) * 2 - 1}
     # the chunk depends on the object poses only: the model must read them to fit
     batch[ACT] = batch[ENV][:, -1, None, :].repeat(1, 16, 2)[..., :ACTION_DIM]
-    opt = torch.optim.Adam(policy.get_optim_params(), lr=5e-3)
-    start = fixed_seed_loss(policy, batch)
-    policy.train()
-    for _ in range(150):
-        loss, _ = policy.forward(batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        policy.update()
-    assert fixed_seed_loss(policy, batch) < 0.3 * start
+    start, end, _ = fit(policy, batch, 150)
+    assert end < 0.3 * start, (start, end)
     policy.eval()
     policy.reset()
     action = policy.select_action({ENV: batch[ENV][:1, -1], STATE: batch[STATE][:1, -1]})
