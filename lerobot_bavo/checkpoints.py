@@ -7,9 +7,18 @@ Why: LeRobot's processor loader imports and instantiates whatever `"class"` a ch
 loading path of this package (`bavo-eval`, `bavo-demo`, `LeRobotPolicyAgent`) runs these checks first.
 
 Trusted: processor steps registered in LeRobot's `ProcessorStepRegistry` (LeRobot's own and this
-package's, registered on import), and `"class"` paths inside `lerobot.processor.` or `lerobot_bavo.`
-that resolve to a `ProcessorStep`. Everything else is refused *before anything is imported*, unless the
-caller opts in with `trust_remote_code=True` (`--trust-remote-code` on the CLIs).
+package's, registered on import) unless their config asks to load Hub code (`trust_remote_code`, which
+LeRobot's `action_tokenizer_processor` turns on by default), and `"class"` paths inside
+`lerobot.processor.` or `lerobot_bavo.` that resolve to a `ProcessorStep`; policy types whose loading
+fetches and runs nothing (`AUDITED_POLICY_TYPES`: LeRobot's pi0_fast, groot, gaussian_actor and wall_x,
+for instance, load Hub models with `trust_remote_code=True` when built). Everything else is refused
+*before anything is imported*, unless the caller opts in with `trust_remote_code=True`
+(`--trust-remote-code` on the CLIs).
+
+Fit: a checkpoint's `config.json` records the point count, image size and object-pose input it was
+trained on; the point-cloud frame (base or camera) is recorded only by the `bavo-collect` dataset it was
+trained on (`train_config.json` -> `meta/bavo_collection.json`, following a training view back to its
+source), so when that dataset is not on this machine the frame is unknown (`recorded_point_frame`).
 """
 
 from __future__ import annotations
@@ -22,6 +31,9 @@ from pathlib import Path
 # Module prefixes whose processor step classes may be imported by dotted path.
 TRUSTED_CLASS_PREFIXES = ("lerobot.processor.", "lerobot_bavo.")
 PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
+# Policy types whose construction from a checkpoint downloads and runs nothing (read in LeRobot 0.6.1's
+# sources: no `from_pretrained` / `trust_remote_code` in their modules), and this package's two.
+AUDITED_POLICY_TYPES = ("act", "diffusion", "vqbet", "tdmpc", "maniflow", "afar")
 
 
 class UntrustedCheckpointError(ValueError):
@@ -50,6 +62,50 @@ def _registered_step_names() -> set[str]:
     return set(ProcessorStepRegistry.list())
 
 
+def _asks_for_remote_code(step: dict) -> bool:
+    """Whether a registered step would be built with `trust_remote_code` on: set in its config, or left out
+    where the step's field defaults to True (LeRobot's `action_tokenizer_processor` hands it to
+    `transformers.AutoProcessor.from_pretrained`, which then runs the tokenizer repo's Python code)."""
+    import dataclasses
+
+    from lerobot.processor import ProcessorStepRegistry
+
+    config = step.get("config") or {}
+    if not isinstance(config, dict):
+        return False
+    if "trust_remote_code" in config:
+        return bool(config["trust_remote_code"])
+    cls = ProcessorStepRegistry.get(step["registry_name"])
+    fields = {f.name: f for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else {}
+    f = fields.get("trust_remote_code")
+    return f is not None and f.default is not dataclasses.MISSING and bool(f.default)
+
+
+def policy_config_problems(path: str | Path) -> list[str]:
+    """What in `config.json` would make loading the checkpoint fetch or run code: a policy `type` that is not
+    registered, or not one of `AUDITED_POLICY_TYPES`, or a PEFT adapter (`use_peft`: LeRobot then loads the
+    base policy its adapter config names, from the Hub). Reads only JSON."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    import lerobot_bavo.policies  # noqa: F401  (registers maniflow / afar)
+
+    file = Path(path) / "config.json"
+    cfg = _read_json(file)
+    kind = cfg.get("type")
+    known = sorted(PreTrainedConfig.get_known_choices())
+    if kind not in known:
+        return [f"{file}: policy type {kind!r} is not a registered LeRobot / lerobot_bavo policy ({', '.join(known)})"]
+    problems = []
+    if kind not in AUDITED_POLICY_TYPES:
+        problems.append(f"{file}: policy type {kind!r} downloads pretrained components when it is built (some "
+                        "LeRobot types with trust_remote_code=True); loaded without opt-in: "
+                        + ", ".join(AUDITED_POLICY_TYPES))
+    if cfg.get("use_peft"):
+        problems.append(f"{file}: use_peft is set (a PEFT adapter loads the base policy named in its adapter "
+                        "config, unchecked)")
+    return problems
+
+
 def processor_step_problems(path: str | Path) -> list[str]:
     """Every processor step of the checkpoint at `path` that is not trusted, as 'file: step i ...' strings.
 
@@ -73,10 +129,16 @@ def processor_step_problems(path: str | Path) -> list[str]:
             if not isinstance(step, dict):
                 problems.append(f"{file}: step {i} is not an object")
                 continue
+            state_file = step.get("state_file")
+            if state_file is not None and (not isinstance(state_file, str) or Path(state_file).name != state_file):
+                problems.append(f"{file}: step {i} state_file {state_file!r} is not a file name inside the checkpoint")
             if "registry_name" in step:
                 if step["registry_name"] not in registered:
                     problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} is not a registered "
                                     "LeRobot / lerobot_bavo processor step")
+                elif _asks_for_remote_code(step):
+                    problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} asks to load Hub code "
+                                    "(trust_remote_code is not false in its config)")
                 continue
             cls_path = step.get("class")
             if not isinstance(cls_path, str):
@@ -100,14 +162,16 @@ def processor_step_problems(path: str | Path) -> list[str]:
 
 
 def check_processor_steps(path: str | Path, trust_remote_code: bool = False) -> None:
-    """Raise `UntrustedCheckpointError` naming every untrusted processor step, unless `trust_remote_code`."""
+    """Raise `UntrustedCheckpointError` naming every untrusted processor step and policy setting (see
+    `processor_step_problems`, `policy_config_problems`), unless `trust_remote_code`. Reads only JSON files
+    and imports only LeRobot's and this package's modules, so it is safe on any checkpoint."""
     if trust_remote_code:
         return
-    problems = processor_step_problems(path)
+    problems = policy_config_problems(path) + processor_step_problems(path)
     if problems:
         raise UntrustedCheckpointError(
-            f"refusing to load the checkpoint at {path}: it names processor steps that are neither LeRobot's nor "
-            "lerobot_bavo's, and loading them would import and run their code:\n  " + "\n  ".join(problems)
+            f"refusing to load the checkpoint at {path}: loading it would import or fetch code that is neither "
+            "LeRobot's nor lerobot_bavo's audited code:\n  " + "\n  ".join(problems)
             + "\nIf you trust where this checkpoint comes from, pass --trust-remote-code (trust_remote_code=True)."
         )
 
@@ -130,24 +194,85 @@ def checkpoint_digest(path: str | Path) -> str:
 
 
 def env_settings(path: str | Path) -> dict:
-    """`BavoEnv` settings a checkpoint records in its input features: n_points (from the cloud, 6 channels),
+    """`BavoEnv` settings a checkpoint records: n_points (from the cloud's input shape, 6 channels),
     image_height / image_width (from `observation.images.active`, CHW), environment_state (object poses
-    among the inputs). Keys it does not record are absent."""
-    cfg = _read_json(Path(path) / "config.json")
+    among the inputs), and point_frame where its training data records it (`recorded_point_frame`). Keys it
+    does not record are absent (point_frame also when the checkpoint reads no point cloud)."""
+    file = Path(path) / "config.json"
+    cfg = _read_json(file)
     inputs = cfg.get("input_features")
     if not isinstance(inputs, dict):
-        raise CheckpointMismatchError(f"{Path(path) / 'config.json'} has no input_features object")
+        raise CheckpointMismatchError(f"{file} has no input_features object")
+
+    def shape_of(key: str) -> list[int]:
+        shape = inputs[key].get("shape") if isinstance(inputs[key], dict) else None
+        if not (isinstance(shape, list) and shape and all(isinstance(n, int) and n > 0 for n in shape)):
+            raise CheckpointMismatchError(f"{file}: input_features[{key!r}] has no valid shape (got {shape!r})")
+        return shape
+
     out: dict = {}
-    pc = inputs.get("observation.point_cloud")
-    if pc is not None:
-        out["n_points"] = math.prod(pc["shape"]) // 6
-    img = inputs.get("observation.images.active")
-    if img is not None:
-        shape = list(img["shape"])
-        c_first = shape[0] == 3
-        out["image_height"], out["image_width"] = (shape[1], shape[2]) if c_first else (shape[0], shape[1])
+    if "observation.point_cloud" in inputs:
+        shape = shape_of("observation.point_cloud")
+        if math.prod(shape) % 6:
+            raise CheckpointMismatchError(f"{file}: observation.point_cloud shape {shape} is not N x 6 (xyz rgb)")
+        out["n_points"] = math.prod(shape) // 6
+        frame = recorded_point_frame(path)
+        if frame is not None:
+            out["point_frame"] = frame
+    if "observation.images.active" in inputs:
+        shape = shape_of("observation.images.active")
+        if len(shape) != 3 or 3 not in (shape[0], shape[-1]):
+            raise CheckpointMismatchError(f"{file}: observation.images.active shape {shape} is not CHW / HWC RGB")
+        out["image_height"], out["image_width"] = (shape[1], shape[2]) if shape[0] == 3 else (shape[0], shape[1])
     out["environment_state"] = "observation.environment_state" in inputs
     return out
+
+
+def recorded_point_frame(path: str | Path) -> str | None:
+    """The point-cloud frame ("base" / "camera") the checkpoint at `path` was trained on, or None if no file
+    on this machine records it.
+
+    LeRobot's policy config has no place for it; lerobot-train writes `train_config.json` beside the
+    weights, whose `env` (when an eval env was configured) or `dataset` names where it came from. The
+    `bavo-collect` record of that dataset (`meta/bavo_collection.json`) holds `settings.point_frame`; a
+    training view (`<root>_points`, see `lerobot_bavo.datasets.views`) has none, so its source folder is
+    read instead. A relative dataset root is taken from the current folder, as lerobot-train did."""
+    file = Path(path) / "train_config.json"
+    if not file.is_file():
+        return None
+    try:
+        train = json.loads(file.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        return None
+    env = train.get("env") if isinstance(train, dict) else None
+    if isinstance(env, dict) and env.get("type") == "bavo" and env.get("point_frame") in ("base", "camera"):
+        return env["point_frame"]
+    dataset = train.get("dataset") if isinstance(train, dict) else None
+    if not isinstance(dataset, dict):
+        return None
+    roots = []
+    if isinstance(dataset.get("root"), str):
+        roots.append(Path(dataset["root"]))
+    elif isinstance(dataset.get("repo_id"), str):
+        from lerobot.utils.constants import HF_LEROBOT_HOME
+
+        roots.append(Path(HF_LEROBOT_HOME) / dataset["repo_id"])
+    from lerobot_bavo.datasets.hub import SIDECAR
+    from lerobot_bavo.datasets.views import VIEW_KEEPS
+
+    for root in list(roots):
+        for view in VIEW_KEEPS:
+            if root.name.endswith(f"_{view}"):
+                roots.append(root.with_name(root.name[: -len(view) - 1]))
+    for root in roots:
+        record = root / SIDECAR
+        try:
+            frame = json.loads(record.read_text())["settings"]["point_frame"]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if frame in ("base", "camera"):
+            return frame
+    return None
 
 
 def mismatches(recorded: dict, actual: dict) -> list[str]:

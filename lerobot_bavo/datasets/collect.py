@@ -247,7 +247,7 @@ class Collector:
         """Create the dataset, or reopen it: check settings, roll back a pending commit, check counts."""
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        from lerobot_bavo.datasets.hub import read_info, read_sidecar
+        from lerobot_bavo.datasets.hub import read_info, read_sidecar, read_stats
 
         info_path = self.root / "meta" / "info.json"
         if not info_path.exists():
@@ -265,6 +265,7 @@ class Collector:
             del ds
         record = read_sidecar(self.root)
         info = read_info(self.root)
+        read_stats(self.root, check_nan=False)  # LeRobot.resume would fail on it later with a bare JSONDecodeError
         if record is None:
             if info["total_episodes"] != 0:
                 raise CollectionError(
@@ -699,6 +700,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--{name.replace('_', '-')} must be >= {low}, got {getattr(args, name)}")
     if args.root is not None and args.root.exists() and not args.root.is_dir():
         parser.error(f"--root {args.root} exists and is not a folder")
+    if args.root is not None:
+        parent = next((p for p in args.root.absolute().parents if p.exists()), None)
+        if parent is not None and not parent.is_dir():
+            parser.error(f"--root {args.root}: {parent} is not a folder")
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (LeRobot's default video codec): errors only
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("lerobot", "datasets", "libav", "huggingface_hub"):

@@ -120,10 +120,12 @@ def load_bavo_dataset(repo_id: str, root: str | Path | None = None, n_points: in
     return ds
 
 
-def read_stats(root: str | Path) -> dict:
+def read_stats(root: str | Path, check_nan: bool = True) -> dict:
     """`meta/stats.json` of a local dataset ({} if absent), with errors naming the file for bad JSON or NaN.
 
-    NaN statistics would make every normalised value NaN and a training run learn nothing, silently."""
+    NaN statistics would make every normalised value NaN and a training run learn nothing, silently.
+    `check_nan=False` checks only that the file reads (LeRobot's own loader fails on it with a bare
+    `JSONDecodeError`), for callers that only append episodes and let LeRobot recompute the statistics."""
     import math
 
     path = Path(root) / "meta" / "stats.json"
@@ -135,6 +137,9 @@ def read_stats(root: str | Path) -> dict:
         raise ValueError(f"corrupted dataset statistics {path}: not valid JSON ({e})") from e
     if not isinstance(stats, dict):
         raise ValueError(f"corrupted dataset statistics {path}: expected an object, got {type(stats).__name__}")
+
+    if not check_nan:
+        return stats
 
     def has_nan(v) -> bool:
         if isinstance(v, list):

@@ -9,13 +9,18 @@ Writes, under --output-dir:
   videos/        the first --videos episodes of every cell, occlusion events marked in red.
 
 Resumable: finished episodes (and so finished cells) found in --output-dir are kept, and only
-missing ones run; the run is keyed on a digest of the checkpoint's files, so a checkpoint replaced
-at the same path is refused instead of mixed in. A torn last line of episodes.jsonl (a full disk,
-a kill mid-write) is dropped with a warning; one run at a time may write an output folder.
+missing ones run; the run is keyed on a digest of the checkpoint's files (not its path: a moved
+checkpoint resumes, one replaced at the same path is refused instead of mixed in), and every
+record carries that digest. A torn last line of episodes.jsonl (a full disk, a kill mid-write) is
+dropped with a warning; one run at a time may write an output folder (a lock on its real path).
 
 Safety: checkpoints name processor classes that LeRobot imports. Only LeRobot's and this
-package's processor steps are loaded; --trust-remote-code lifts that for checkpoints you trust.
-The env is built with the point count, image size and object-pose input the checkpoint records. Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
+package's processor steps and audited policy types are loaded; --trust-remote-code lifts that for
+checkpoints you trust. The env is built with the point count, image size and object-pose input the
+checkpoint records, and the point frame its training dataset records (--point-frame when no file
+records it; a conflicting --point-frame is refused).
+
+Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
 (the privileged scripted expert with camera recovery) or `expert-frozen-camera` (same
 manipulation, camera arm never moves; its CVG is exactly 0 by construction).
 
@@ -52,13 +57,14 @@ def _run_job(job: dict) -> dict:
     from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
 
-    key = (job["policy"], job["task"], job["condition"])
+    env_kwargs = job["env_kwargs"] if "env_kwargs" in job else env_kwargs_for_policy(job["policy"])
+    key = (job["policy"], job["task"], job["condition"], tuple(sorted(env_kwargs.items())))
     if key not in _CACHE:
         for old in _CACHE.values():
             old[0].close()
         _CACHE.clear()
         env = BavoEnv(task=job["task"], condition=job["condition"], compute_cvg=job["condition"] == "random",
-                      **env_kwargs_for_policy(job["policy"]))
+                      **env_kwargs)
         _CACHE[key] = (env, make_agent(job["policy"], env, trust_remote_code=job.get("trust_remote_code", False)))
     env, agent = _CACHE[key]
     video = Path(job["video"]) if job.get("video") else None
@@ -66,6 +72,8 @@ def _run_job(job: dict) -> dict:
     record = run_episode(env, agent, job["seed"], video_path=video)
     record["wall_s"] = round(time.perf_counter() - t0, 2)
     record["task"], record["condition"] = job["task"], job["condition"]
+    if job.get("checkpoint_sha256"):
+        record["checkpoint_sha256"] = job["checkpoint_sha256"]
     return record
 
 
@@ -134,8 +142,43 @@ def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
     return done
 
 
+def env_kwargs_for_run(policy: str, point_frame: str | None = None) -> dict:
+    """The `BavoEnv` settings of a run: what the checkpoint records (`lerobot_bavo.checkpoints.env_settings`), with
+    `point_frame` from the command line where nothing records it. A --point-frame that contradicts the
+    checkpoint's training data is refused, listing both."""
+    import sys
+
+    from lerobot_bavo.checkpoints import CheckpointMismatchError
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy
+
+    try:
+        kwargs = dict(env_kwargs_for_policy(policy))
+    except CheckpointMismatchError as e:
+        raise SystemExit(f"bavo-eval: {e}") from None
+    recorded = kwargs.get("point_frame")
+    if point_frame is not None and recorded is not None and point_frame != recorded:
+        raise SystemExit(f"bavo-eval: --point-frame {point_frame} conflicts with the checkpoint: point_frame: "
+                         f"checkpoint {recorded!r} (its training dataset's bavo_collection.json), asked {point_frame!r}")
+    if point_frame is not None:
+        kwargs["point_frame"] = point_frame
+    elif "n_points" in kwargs and recorded is None:
+        kwargs["point_frame"] = "base"
+        print(f"bavo-eval: warning: nothing on this machine records the point-cloud frame the checkpoint at {policy} "
+              "was trained on (its train_config.json names no bavo-collect dataset found here); evaluating on "
+              "base-frame clouds, pass --point-frame camera for a camera-frame model", file=sys.stderr)
+    return kwargs
+
+
+def _identity(settings: dict) -> tuple:
+    """What must match to resume a run: seed, the checkpoint's digest (the expert's name), the point frame.
+    The path is informational (run.json files written before the digest existed still resume)."""
+    return (settings.get("seed"), settings.get("checkpoint_sha256") or settings.get("policy"),
+            settings.get("point_frame", "base"))
+
+
 def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
-             output_dir: Path, workers: int = 1, videos: int = 1, trust_remote_code: bool = False) -> dict:
+             output_dir: Path, workers: int = 1, videos: int = 1, trust_remote_code: bool = False,
+             point_frame: str | None = None) -> dict:
     """Run (or resume) the evaluation and write results.json / results.md; returns the results."""
     from tqdm import tqdm
 
@@ -156,6 +199,8 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
         raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
                          "nor a LeRobot checkpoint directory containing config.json")
+    if point_frame not in (None, "base", "camera"):
+        raise SystemExit(f"bavo-eval: --point-frame must be base or camera, got {point_frame!r}")
     if output_dir.exists() and not output_dir.is_dir():
         raise SystemExit(f"bavo-eval: --output-dir {output_dir} exists and is not a folder")
     settings: dict = {"seed": seed}
@@ -163,26 +208,31 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
         policy_id = settings["policy"] = policy
     else:
         policy_id = settings["policy"] = str(Path(policy).resolve())
-        try:  # refuse untrusted processor steps here, before any worker imports them
+        try:  # refuse untrusted processor steps and policy types here, before any worker imports them
             check_processor_steps(policy, trust_remote_code=trust_remote_code)
         except (ValueError, CheckpointMismatchError) as e:
             raise SystemExit(f"bavo-eval: {e}") from None
         settings["checkpoint_sha256"] = checkpoint_digest(policy)
+    env_kwargs = env_kwargs_for_run(policy, point_frame)
+    settings["point_frame"] = env_kwargs.get("point_frame", "base")
 
-    output_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # e.g. a parent that is a file
+        raise SystemExit(f"bavo-eval: cannot create --output-dir {output_dir}: {e.strerror}") from None
     try:
         lock = exclusive_lock(output_dir, "bavo-eval")
     except LockedError as e:
         raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
     try:
-        return _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, seed, output_dir,
-                                workers, videos, trust_remote_code, tqdm)
+        return _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed,
+                                output_dir, workers, videos, trust_remote_code, tqdm)
     finally:
         lock.close()
 
 
-def _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, seed, output_dir, workers, videos,
-                     trust_remote_code, tqdm) -> dict:
+def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed, output_dir, workers,
+                     videos, trust_remote_code, tqdm) -> dict:
     log_path = output_dir / "episodes.jsonl"
     settings_path = output_dir / "run.json"
     if settings_path.exists():
@@ -190,13 +240,18 @@ def _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, s
             previous = json.loads(settings_path.read_text())
         except json.JSONDecodeError as e:
             raise SystemExit(f"bavo-eval: {settings_path} is not valid JSON ({e}); use another --output-dir") from None
-        if previous != settings:
+        if not isinstance(previous, dict) or _identity(previous) != _identity(settings):
             raise SystemExit(f"bavo-eval: {output_dir} holds a run with different settings {previous} (now "
                              f"{settings}: another checkpoint, or the same path with other weights); use another "
                              "--output-dir")
     settings_path.write_text(json.dumps(settings))
 
     done = read_episode_log(log_path)
+    digest = settings.get("checkpoint_sha256")
+    foreign = sorted({r["checkpoint_sha256"] for r in done.values() if r.get("checkpoint_sha256", digest) != digest})
+    if foreign:
+        raise SystemExit(f"bavo-eval: {log_path} holds episodes of other checkpoints (sha256 {', '.join(foreign)}; "
+                         f"this one is {digest}); use another --output-dir")
     jobs = []
     for task in tasks:
         for cond in conditions:
@@ -206,7 +261,8 @@ def _evaluate_locked(policy, policy_id, settings, tasks, conditions, episodes, s
                     continue
                 video = str(output_dir / "videos" / f"{task}_{cond}_seed{s}.mp4") if i < videos else None
                 jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video,
-                             "trust_remote_code": trust_remote_code})
+                             "trust_remote_code": trust_remote_code, "env_kwargs": env_kwargs,
+                             "checkpoint_sha256": digest})
     if done:
         print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
 
@@ -259,14 +315,23 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
     parser.add_argument("--videos", type=int, default=1, help="episodes recorded per cell (default 1)")
     parser.add_argument("--trust-remote-code", action="store_true",
-                        help="load processor steps that are neither LeRobot's nor lerobot_bavo's (they run "
-                             "arbitrary code when loaded: only for checkpoints you trust)")
+                        help="load processor steps and policy types that are neither LeRobot's audited ones nor "
+                             "lerobot_bavo's (they run arbitrary code when loaded: only for checkpoints you trust)")
+    parser.add_argument("--point-frame", choices=("base", "camera"), default=None,
+                        help="frame of the env's point clouds when nothing records the checkpoint's (default: the "
+                             "frame its training dataset records, else base); a conflicting value is refused")
     args = parser.parse_args(argv)
     for name, low in (("episodes", 1), ("seed", 0), ("workers", 1), ("videos", 0)):
         if getattr(args, name) < low:
             parser.error(f"--{name} must be >= {low}, got {getattr(args, name)}")
-    evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
-             args.output_dir, workers=args.workers, videos=args.videos, trust_remote_code=args.trust_remote_code)
+    from lerobot_bavo.checkpoints import CheckpointMismatchError, UntrustedCheckpointError
+
+    try:
+        evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
+                 args.output_dir, workers=args.workers, videos=args.videos, trust_remote_code=args.trust_remote_code,
+                 point_frame=args.point_frame)
+    except (CheckpointMismatchError, UntrustedCheckpointError) as e:  # raised while a worker loads the policy
+        raise SystemExit(f"bavo-eval: {e}") from None
 
 
 if __name__ == "__main__":

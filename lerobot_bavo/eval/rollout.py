@@ -35,9 +35,10 @@ class LeRobotPolicyAgent:
     Loading follows `lerobot-eval`: the policy config and weights from the directory, the saved
     pre/post-processors (normalisation), and LeRobot's own observation conversion
     (`preprocess_observation`), so results match `lerobot-eval --policy.path=...`. Before that,
-    `lerobot_bavo.checkpoints` refuses processor steps that are neither LeRobot's nor ours (unless
-    `trust_remote_code`), refuses a checkpoint whose recorded inputs (points, image size, object poses)
-    differ from the env's, and after it refuses weights with missing or unexpected tensors.
+    `lerobot_bavo.checkpoints` refuses processor steps and policy types that are neither LeRobot's audited
+    ones nor ours (unless `trust_remote_code`), refuses a checkpoint whose recorded inputs (points, point
+    frame, image size, object poses) differ from the env's, and after it refuses weights with missing or
+    unexpected tensors: LeRobot only logs those and the policy then acts with random layers.
     """
 
     def __init__(self, path: str | Path, env, device: str = "cpu", trust_remote_code: bool = False):
@@ -60,8 +61,8 @@ class LeRobotPolicyAgent:
                                     "pass .../checkpoints/<step>/pretrained_model")
         check_processor_steps(path, trust_remote_code=trust_remote_code)
         s = env.obs_settings
-        actual = {"n_points": s.n_points, "image_height": s.image_height, "image_width": s.image_width,
-                  "environment_state": env.environment_state}
+        actual = {"n_points": s.n_points, "point_frame": s.point_frame, "image_height": s.image_height,
+                  "image_width": s.image_width, "environment_state": getattr(env, "environment_state", False)}
         wrong = mismatches(env_settings(path), actual)
         if wrong:
             raise CheckpointMismatchError(f"the checkpoint at {path} was trained on other observations than this "
@@ -105,8 +106,8 @@ class LeRobotPolicyAgent:
 
 def env_kwargs_for_policy(policy: str) -> dict:
     """`BavoEnv` keyword arguments that make the env give a checkpoint the observations it was trained on:
-    the point count, image size and privileged object poses its input features record
-    (`lerobot_bavo.checkpoints.env_settings`). Experts need none."""
+    the point count, image size and privileged object poses its input features record, and the point frame
+    where its training data records it (`lerobot_bavo.checkpoints.env_settings`). Experts need none."""
     if policy in EXPERT_POLICIES or not (Path(policy) / "config.json").is_file():
         return {}
     from lerobot_bavo.checkpoints import env_settings
