@@ -95,14 +95,28 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
     check_processor_steps(evil, trust_remote_code=True)  # the explicit opt-in lets it through
     check_processor_steps(checkpoint)  # LeRobot's and our own steps are trusted
 
-    # other spellings of the same attack
+    # other spellings of the same attack: unknown names, non-step classes, a registered step told to run Hub
+    # code (LeRobot's action tokenizer defaults to trust_remote_code=True), a state file outside the folder
     for step in ({"registry_name": "not_a_registered_step"}, {"class": "os.system"},
-                 {"class": "lerobot_bavo.checkpoints.checkpoint_digest"}, {"config": {}}):
+                 {"class": "lerobot_bavo.checkpoints.checkpoint_digest"}, {"config": {}},
+                 {"registry_name": "action_tokenizer_processor", "config": {"action_tokenizer_name": "evil/tok"}},
+                 {"registry_name": "tokenizer_processor", "config": {"tokenizer_name": "x", "trust_remote_code": True}},
+                 {"registry_name": "normalizer_processor", "state_file": "../../elsewhere.safetensors"}):
         pre_bad = json.loads((checkpoint / "policy_preprocessor.json").read_text())
         pre_bad["steps"].append(step)
         (evil / "policy_preprocessor.json").write_text(json.dumps(pre_bad))
         with pytest.raises(UntrustedCheckpointError, match="step"):
             check_processor_steps(evil)
+
+    # policy types: unregistered, registered but loading Hub code when built, a PEFT adapter
+    (evil / "policy_preprocessor.json").write_text((checkpoint / "policy_preprocessor.json").read_text())
+    base_cfg = json.loads((checkpoint / "config.json").read_text())
+    for change, message in (({"type": "no_such_policy"}, "not a registered"), ({"type": "pi0_fast"}, "'pi0_fast' downloads"),
+                            ({"use_peft": True}, "use_peft")):
+        (evil / "config.json").write_text(json.dumps({**base_cfg, **change}))
+        with pytest.raises(UntrustedCheckpointError, match=message):
+            check_processor_steps(evil)
+        check_processor_steps(evil, trust_remote_code=True)
 
 
 # ----------------------------------------------------------------------------- 2. mismatched / partial checkpoints
@@ -116,6 +130,26 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
     # bavo-eval builds its env from what the checkpoint records
     assert env_settings(checkpoint) == {"n_points": N_POINTS, "environment_state": False}
     assert env_kwargs_for_policy(str(checkpoint)) == {"n_points": N_POINTS, "environment_state": False}
+
+    # an ACT made for 96 x 128 images: bavo-eval's env renders 96 x 128; an env at 240 x 320 is refused
+    # (config.json alone: the check runs before anything is loaded)
+    act = tmp_path / "act"
+    act.mkdir()
+    (act / "config.json").write_text(json.dumps({"type": "act", "input_features": {
+        "observation.images.active": {"type": "VISUAL", "shape": [3, 96, 128]},
+        "observation.state": {"type": "STATE", "shape": [21]}}}))
+    assert env_settings(act) == {"image_height": 96, "image_width": 128, "environment_state": False}
+    big = BavoEnv("cube_handoff", "clean", n_points=8, render_mode=None)
+    try:
+        with pytest.raises(CheckpointMismatchError, match=r"image_height: checkpoint 96, env 240; image_width: "
+                                                          r"checkpoint 128, env 320"):
+            LeRobotPolicyAgent(act, big)
+    finally:
+        big.close()
+    (act / "config.json").write_text(json.dumps({"type": "act", "input_features": {
+        "observation.point_cloud": {"type": "STATE", "shape": [100]}}}))
+    with pytest.raises(CheckpointMismatchError, match=r"config.json: observation.point_cloud shape \[100\] is not N x 6"):
+        env_settings(act)
     wrong = BavoEnv("cube_handoff", "clean", image_height=32, image_width=32, n_points=64, render_mode=None)
     try:
         with pytest.raises(CheckpointMismatchError, match="n_points: checkpoint 32, env 64"):
@@ -142,6 +176,11 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
     try:
         with pytest.raises(CheckpointMismatchError, match="1 missing tensor"):
             LeRobotPolicyAgent(partial, env)
+        weights = load_file(str(checkpoint / "model.safetensors"))
+        weights["extra.weight"] = torch.zeros(2)
+        save_file(weights, str(partial / "model.safetensors"))
+        with pytest.raises(CheckpointMismatchError, match=r"1 unexpected \['extra.weight'\]"):
+            LeRobotPolicyAgent(partial, env)
         agent = LeRobotPolicyAgent(checkpoint, env)  # the complete one loads and acts
         obs, info = env.reset(seed=0)
         assert np.isfinite(agent.act(obs, info)).all()
@@ -159,6 +198,51 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
                                               "checkpoint_sha256": checkpoint_digest(partial)}))
     with pytest.raises(SystemExit, match="different settings"):
         evaluate(str(same_path), ["cube_handoff"], ["clean"], 1, 1000, out)
+
+    # ... while the same files at another path resume (the key is the digest, not the path); a record of
+    # another checkpoint in the log is refused even without run.json
+    record = {"task": "cube_handoff", "condition": "clean", "seed": 1000, "success": False, "progress": 1,
+              "steps": 800, "checkpoint_sha256": checkpoint_digest(checkpoint)}
+    (out / "run.json").write_text(json.dumps({"seed": 1000, "policy": str(checkpoint.resolve()),
+                                              "checkpoint_sha256": checkpoint_digest(checkpoint)}))
+    (out / "episodes.jsonl").write_text(json.dumps(record) + "\n")
+    results = evaluate(str(same_path), ["cube_handoff"], ["clean"], 1, 1000, out)  # no episode left to run
+    assert results["cells"]["cube_handoff/clean"]["n_episodes"] == 1
+    (out / "run.json").unlink()
+    (out / "episodes.jsonl").write_text(json.dumps({**record, "checkpoint_sha256": checkpoint_digest(partial)}) + "\n")
+    with pytest.raises(SystemExit, match="episodes of other checkpoints"):
+        evaluate(str(same_path), ["cube_handoff"], ["clean"], 1, 1000, out)
+
+
+def test_the_point_frame_comes_from_the_training_data_and_a_conflict_is_refused(checkpoint, tmp_path, capsys):
+    """A model trained on camera-frame clouds must not be scored on base-frame clouds."""
+    from lerobot_bavo.checkpoints import CheckpointMismatchError, env_settings
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.eval.cli import env_kwargs_for_run
+    from lerobot_bavo.eval.rollout import LeRobotPolicyAgent
+
+    # lerobot-train wrote train_config.json naming the `points` view; its source holds the bavo-collect record
+    source = tmp_path / "datasets" / "bavo_x"
+    (source / "meta").mkdir(parents=True)
+    (source / "meta" / "bavo_collection.json").write_text(json.dumps({"settings": {"point_frame": "camera"}}))
+    cam = _copy(checkpoint, tmp_path / "cam")
+    (cam / "train_config.json").write_text(json.dumps({"dataset": {"repo_id": "t/bavo_x_points",
+                                                                   "root": str(tmp_path / "datasets" / "bavo_x_points")}}))
+    assert env_settings(cam)["point_frame"] == "camera"
+    assert env_kwargs_for_run(str(cam))["point_frame"] == "camera"
+    with pytest.raises(SystemExit, match="--point-frame base conflicts with the checkpoint: point_frame: checkpoint "
+                                         "'camera'"):
+        env_kwargs_for_run(str(cam), "base")
+    env = BavoEnv("cube_handoff", "clean", image_height=32, image_width=32, n_points=N_POINTS, render_mode=None)
+    try:
+        with pytest.raises(CheckpointMismatchError, match="point_frame: checkpoint 'camera', env 'base'"):
+            LeRobotPolicyAgent(cam, env)
+    finally:
+        env.close()
+    # nothing records it: base, with a warning that says how to change it
+    assert env_kwargs_for_run(str(checkpoint))["point_frame"] == "base"
+    assert "pass --point-frame camera" in capsys.readouterr().err
+    assert env_kwargs_for_run(str(checkpoint), "camera")["point_frame"] == "camera"
 
 
 # ----------------------------------------------------------------------------- 3. torn episodes.jsonl
@@ -196,6 +280,79 @@ def test_a_torn_last_log_line_is_dropped_and_a_corrupt_middle_line_is_named(tmp_
     log.write_text(first + "{not json\n" + json.dumps(records[1]) + "\n")
     with pytest.raises(SystemExit, match=r"episodes.jsonl line 2 is corrupt"):
         read_episode_log(log)
+
+
+# A bavo-eval run whose episodes are fake and fast (the write path, resume and lock are the real ones):
+# `python -c FAKE_EVAL <seconds per episode> <bavo-eval arguments>`.
+FAKE_EVAL = """
+import resource, signal, sys, time
+from lerobot_bavo.eval import cli
+def fake_run_job(job):
+    time.sleep(float(sys.argv[1]))
+    return {"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True,
+            "progress": 5, "steps": 300, "padding": "x" * 200}
+cli._run_job = fake_run_job
+limit = int(sys.argv[2])
+if limit:  # the disk fills after `limit` bytes: writes past it fail with EFBIG, as with ENOSPC
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+cli.main(sys.argv[3:])
+"""
+
+
+def _fake_eval(seconds: float, limit: int, args: list[str], **kw) -> subprocess.CompletedProcess | subprocess.Popen:
+    cmd = [sys.executable, "-c", FAKE_EVAL, str(seconds), str(limit), "--policy", "expert", "--tasks", "cube_handoff",
+           "--conditions", "clean", "--videos", "0", *args]
+    if kw.pop("background", False):
+        return subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=300)
+
+
+def test_a_full_disk_tears_the_log_and_the_rerun_drops_the_torn_line(tmp_path):
+    """bavo-eval's own writes, with the file size limited so the second record is cut mid-line."""
+    out = tmp_path / "eval"
+    line = len(json.dumps({"task": "cube_handoff", "condition": "clean", "seed": 1000, "success": True,
+                           "progress": 5, "steps": 300, "padding": "x" * 200, "wall_s": 0.0})) + 1
+    full = _fake_eval(0, line + 40, ["--episodes", "3", "--output-dir", str(out)])
+    assert full.returncode != 0 and "episodes.jsonl failed (File too large); free some space" in full.stderr
+    assert "Traceback" not in full.stderr
+    torn = (out / "episodes.jsonl").read_bytes()
+    assert torn.count(b"\n") == 1 and not torn.endswith(b"\n")  # one record, then a torn one
+
+    rerun = _fake_eval(0, 0, ["--episodes", "3", "--output-dir", str(out)])
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"dropping an incomplete last line of {out / 'episodes.jsonl'}" in rerun.stderr
+    assert "1 finished episodes kept, 2 to run" in rerun.stdout
+    lines = (out / "episodes.jsonl").read_text().splitlines()
+    assert sorted(json.loads(x)["seed"] for x in lines) == [1000, 1001, 1002]
+    assert json.loads((out / "results.json").read_text())["cells"]["cube_handoff/clean"]["n_episodes"] == 3
+
+
+def test_two_bavo_eval_runs_on_one_folder(tmp_path):
+    """A second run on the same folder (here through a symlink) is refused while the first writes; the first
+    finishes with each episode once."""
+    from lerobot_bavo.eval.cli import main as eval_main
+
+    out = tmp_path / "eval"
+    link = tmp_path / "link"
+    link.symlink_to(out, target_is_directory=True)
+    first = _fake_eval(0.5, 0, ["--episodes", "6", "--output-dir", str(out)], background=True)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and not (out / "run.json").exists() and first.poll() is None:
+            time.sleep(0.2)
+        assert (out / "run.json").exists(), first.communicate()[1]
+        for spelling in (out, link):
+            with pytest.raises(SystemExit, match=f"another bavo-eval is writing {out.resolve()}"):
+                eval_main(["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean", "--episodes", "6",
+                           "--videos", "0", "--output-dir", str(spelling)])
+        stdout, stderr = first.communicate(timeout=120)
+        assert first.returncode == 0, stderr
+    finally:
+        if first.poll() is None:
+            first.kill()
+    seeds = [json.loads(x)["seed"] for x in (out / "episodes.jsonl").read_text().splitlines()]
+    assert sorted(seeds) == list(range(1000, 1006))
 
 
 # ----------------------------------------------------------------------------- 5. locks

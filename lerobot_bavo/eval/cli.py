@@ -176,6 +176,21 @@ def _identity(settings: dict) -> tuple:
             settings.get("point_frame", "base"))
 
 
+def append_record(log, record: dict) -> None:
+    """Append one record to the open (unbuffered, binary) `episodes.jsonl` as one newline-terminated line.
+
+    The newline comes last, so a write cut short (a full disk, a kill) leaves a last line without one, which
+    `read_episode_log` recognises and drops. Unbuffered, so nothing is left to flush (and to fail again) when
+    the file is closed after a failed write; a failed write ends the run with a message, not a traceback."""
+    data = memoryview((json.dumps(record) + "\n").encode())
+    try:
+        while data:
+            data = data[log.write(data):]
+    except OSError as e:
+        raise SystemExit(f"bavo-eval: writing {log.name} failed ({e.strerror}); free some space and re-run the same "
+                         "command: finished episodes are kept and the cut-off last line is dropped") from None
+
+
 def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
              output_dir: Path, workers: int = 1, videos: int = 1, trust_remote_code: bool = False,
              point_frame: str | None = None) -> dict:
@@ -266,15 +281,18 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
     if done:
         print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
 
-    with open(log_path, "a") as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
+    with open(log_path, "ab", buffering=0) as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
         if workers > 1 and jobs:
-            with ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
-                                     initargs=(os.getpid(),)) as pool:
+            pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(os.getpid(),))
+            try:
                 for record in pool.map(_run_job, jobs):
                     done[(record["task"], record["condition"], record["seed"])] = record
-                    log.write(json.dumps(record) + "\n")
-                    log.flush()
+                    append_record(log, record)
                     bar.update(1)
+            except BaseException:  # a failed write or a bad checkpoint: do not run the queued episodes first
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+            pool.shutdown(wait=True)
         else:
             from lerobot_bavo.runtime import limit_threads
 
@@ -282,8 +300,7 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
             for job in jobs:
                 record = _run_job(job)
                 done[(record["task"], record["condition"], record["seed"])] = record
-                log.write(json.dumps(record) + "\n")
-                log.flush()
+                append_record(log, record)
                 bar.update(1)
 
     cells = {}
