@@ -464,6 +464,35 @@ def test_bad_dataset_metadata_and_nan_are_named(tmp_path):
         make_maniflow_pre_post_processors(cfg, stats)
 
 
+def test_bavo_collect_names_the_broken_metadata_file_of_the_dataset_it_continues(tmp_path, capsys):
+    """Resuming a dataset whose stats.json is not JSON, whose info.json has features: null, or whose
+    collection record has no settings: one line naming the file (before: JSONDecodeError / TypeError /
+    KeyError: 'settings' tracebacks)."""
+    from lerobot_bavo.datasets import schema as S
+    from lerobot_bavo.datasets.collect import CollectConfig, Collector
+    from lerobot_bavo.datasets.collect import main as collect_main
+    from lerobot_bavo.datasets.hub import SIDECAR
+
+    root = tmp_path / "ds"
+    args = ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "t/x", "--root", str(root), "--workers", "0",
+            "--image-height", "32", "--image-width", "32", "--n-points", "8", "--no-progress"]
+    Collector(CollectConfig(task="cube_handoff", condition="stage", episodes=1, repo_id="t/x", root=root, workers=0,
+                            settings=S.DatasetSettings(32, 32, n_points=8), progress=False))._open()  # empty dataset
+    good = {name: (root / name).read_text() for name in ("meta/info.json", str(SIDECAR))}
+    for name, text, message in (
+            ("meta/stats.json", "{not json", "stats.json: not valid JSON"),
+            ("meta/info.json", json.dumps({**json.loads(good["meta/info.json"]), "features": None}),
+             "info.json: no 'features' object"),
+            (str(SIDECAR), json.dumps({"episodes": []}), f"{SIDECAR.name}: no 'settings' object")):
+        (root / name).write_text(text)
+        assert collect_main(args) == 2
+        err = capsys.readouterr().err
+        assert message in err and str(root) in err and "Traceback" not in err
+        (root / name).unlink()
+        if name in good:
+            (root / name).write_text(good[name])
+
+
 def test_afar_refuses_nan_teacher_features():
     from lerobot.configs import FeatureType, PolicyFeature
 
