@@ -10,8 +10,8 @@ Trusted: processor steps registered in LeRobot's `ProcessorStepRegistry` (LeRobo
 package's, registered on import) unless their config asks to load Hub code (`trust_remote_code`, which
 LeRobot's `action_tokenizer_processor` turns on by default), and `"class"` paths inside
 `lerobot.processor.` or `lerobot_bavo.` that resolve to a `ProcessorStep`; policy types whose loading
-fetches and runs nothing (`AUDITED_POLICY_TYPES`: LeRobot's pi0_fast, groot, gaussian_actor and wall_x,
-for instance, load Hub models with `trust_remote_code=True` when built). Everything else is refused
+runs no code from outside LeRobot, torch and torchvision (`AUDITED_POLICY_TYPES`; LeRobot's pi0_fast,
+groot, gaussian_actor and wall_x, by contrast, load Hub models with `trust_remote_code=True` when built). Everything else is refused
 *before anything is imported*, unless the caller opts in with `trust_remote_code=True`
 (`--trust-remote-code` on the CLIs).
 
@@ -31,13 +31,15 @@ from pathlib import Path
 # Module prefixes whose processor step classes may be imported by dotted path.
 TRUSTED_CLASS_PREFIXES = ("lerobot.processor.", "lerobot_bavo.")
 PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
-# Policy types whose construction from a checkpoint downloads and runs nothing (read in LeRobot 0.6.1's
-# sources: no `from_pretrained` / `trust_remote_code` in their modules), and this package's two.
+# Policy types whose construction from a checkpoint runs no code from outside LeRobot, torch and torchvision
+# (read in LeRobot 0.6.1's sources: no Hub `from_pretrained` / `trust_remote_code` in their modules; ACT and
+# Diffusion may fetch torchvision's ImageNet weights, which load as tensors only), and this package's two.
 AUDITED_POLICY_TYPES = ("act", "diffusion", "vqbet", "tdmpc", "maniflow", "afar")
 
 
 class UntrustedCheckpointError(ValueError):
-    """A checkpoint asks to import or run something outside LeRobot's and this package's processor steps."""
+    """A checkpoint asks to import or run something outside LeRobot's and this package's processor steps and
+    audited policy types."""
 
 
 class CheckpointMismatchError(ValueError):
@@ -97,9 +99,9 @@ def policy_config_problems(path: str | Path) -> list[str]:
         return [f"{file}: policy type {kind!r} is not a registered LeRobot / lerobot_bavo policy ({', '.join(known)})"]
     problems = []
     if kind not in AUDITED_POLICY_TYPES:
-        problems.append(f"{file}: policy type {kind!r} downloads pretrained components when it is built (some "
-                        "LeRobot types with trust_remote_code=True); loaded without opt-in: "
-                        + ", ".join(AUDITED_POLICY_TYPES))
+        problems.append(f"{file}: policy type {kind!r} is not audited: LeRobot types outside "
+                        f"{', '.join(AUDITED_POLICY_TYPES)} download pretrained components when built, some with "
+                        "trust_remote_code=True")
     if cfg.get("use_peft"):
         problems.append(f"{file}: use_peft is set (a PEFT adapter loads the base policy named in its adapter "
                         "config, unchecked)")
