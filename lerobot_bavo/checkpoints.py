@@ -7,8 +7,8 @@ Why: LeRobot's processor loader imports and instantiates whatever `"class"` a ch
 loading path of this package (`bavo-eval`, `bavo-demo`, `LeRobotPolicyAgent`) runs these checks first.
 
 Trusted: processor steps registered in LeRobot's `ProcessorStepRegistry` (LeRobot's own and this
-package's, registered on import) unless their config asks to load Hub code (`trust_remote_code`, which
-LeRobot's `action_tokenizer_processor` turns on by default), and `"class"` paths inside
+package's, registered on import) except those that load models or tokenizers from the Hub
+(`HUB_LOADING_STEPS`) and those whose config asks for Hub code (`trust_remote_code`), and `"class"` paths inside
 `lerobot.processor.` or `lerobot_bavo.` that resolve to a `ProcessorStep`; policy types whose loading
 runs no code from outside LeRobot, torch and torchvision (`AUDITED_POLICY_TYPES`; LeRobot's pi0_fast,
 groot, gaussian_actor and wall_x, by contrast, load Hub models with `trust_remote_code=True` when built). Everything else is refused
@@ -35,6 +35,15 @@ PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
 # (read in LeRobot 0.6.1's sources: no Hub `from_pretrained` / `trust_remote_code` in their modules; ACT and
 # Diffusion may fetch torchvision's ImageNet weights, which load as tensors only), and this package's two.
 AUDITED_POLICY_TYPES = ("act", "diffusion", "vqbet", "tdmpc", "maniflow", "afar")
+# Registered LeRobot 0.6.1 steps that load a model, tokenizer or processor named in their config from the Hub
+# (`from_pretrained`; the action tokenizer with trust_remote_code=True by default, the reward classifier a Hub
+# encoder with trust_remote_code=True, the others tokenizers or weights): a checkpoint could point them at any
+# repository. None of them is used by the audited policy types. tests/test_faults.py checks that the list covers every registered step
+# whose source calls `from_pretrained` or `hf_hub_download`.
+HUB_LOADING_STEPS = frozenset({
+    "action_tokenizer_processor", "tokenizer_processor", "reward_classifier_processor", "eo1_qwen_processor",
+    "groot_action_unpack_unnormalize_v2", "groot_n1_7_action_decode_v1", "molmoact2_pack_inputs",
+})
 
 
 class UntrustedCheckpointError(ValueError):
@@ -138,6 +147,9 @@ def processor_step_problems(path: str | Path) -> list[str]:
                 if step["registry_name"] not in registered:
                     problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} is not a registered "
                                     "LeRobot / lerobot_bavo processor step")
+                elif step["registry_name"] in HUB_LOADING_STEPS:
+                    problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} loads a model or "
+                                    "tokenizer its config names from the Hub")
                 elif _asks_for_remote_code(step):
                     problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} asks to load Hub code "
                                     "(trust_remote_code is not false in its config)")

@@ -101,6 +101,7 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
                  {"class": "lerobot_bavo.checkpoints.checkpoint_digest"}, {"config": {}},
                  {"registry_name": "action_tokenizer_processor", "config": {"action_tokenizer_name": "evil/tok"}},
                  {"registry_name": "tokenizer_processor", "config": {"tokenizer_name": "x", "trust_remote_code": True}},
+                 {"registry_name": "reward_classifier_processor", "config": {"pretrained_path": "evil/classifier"}},
                  {"registry_name": "normalizer_processor", "state_file": "../../elsewhere.safetensors"}):
         pre_bad = json.loads((checkpoint / "policy_preprocessor.json").read_text())
         pre_bad["steps"].append(step)
@@ -117,6 +118,20 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
         with pytest.raises(UntrustedCheckpointError, match=message):
             check_processor_steps(evil)
         check_processor_steps(evil, trust_remote_code=True)
+
+
+def test_every_registered_step_that_loads_from_the_hub_is_refused():
+    """HUB_LOADING_STEPS is a list read from LeRobot's sources; this keeps it complete if LeRobot changes."""
+    import inspect
+
+    from lerobot.processor import ProcessorStepRegistry
+
+    import lerobot_bavo.policies  # noqa: F401
+    from lerobot_bavo.checkpoints import HUB_LOADING_STEPS
+
+    loading = {name for name in ProcessorStepRegistry.list()
+               if any(w in inspect.getsource(ProcessorStepRegistry.get(name)) for w in ("from_pretrained", "hf_hub_download"))}
+    assert loading <= HUB_LOADING_STEPS, f"registered steps that load from the Hub but are not refused: {loading - HUB_LOADING_STEPS}"
 
 
 # ----------------------------------------------------------------------------- 2. mismatched / partial checkpoints
