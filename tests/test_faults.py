@@ -3,6 +3,7 @@ lock bypass, and small argument / file errors. Each test reproduces the fault an
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -49,6 +50,16 @@ def checkpoint(tmp_path_factory) -> Path:
     return _save_checkpoint(tmp_path_factory.mktemp("ckpt") / "pretrained_model")
 
 
+def _small_env(**overrides):
+    """A Cube Handoff env with small observations (32 x 32 images, N_POINTS points, no rendering), closed on
+    exit: `with _small_env() as env: ...`."""
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+
+    kwargs = dict(image_height=32, image_width=32, n_points=N_POINTS, render_mode=None)
+    kwargs.update(overrides)
+    return contextlib.closing(BavoEnv("cube_handoff", "clean", **kwargs))
+
+
 def _copy(src: Path, dst: Path) -> Path:
     import shutil
 
@@ -70,7 +81,6 @@ def _env() -> dict:
 def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tmp_path):
     """The exact attack: a preprocessor step {"class": "subprocess.Popen", "config": {"args": [...]}}."""
     from lerobot_bavo.checkpoints import UntrustedCheckpointError, check_processor_steps
-    from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import LeRobotPolicyAgent
 
     evil = _copy(checkpoint, tmp_path / "evil")
@@ -84,12 +94,8 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
                           capture_output=True, text=True, timeout=300, env=_env())
     assert proc.returncode != 0
     assert "subprocess.Popen" in proc.stderr and "--trust-remote-code" in proc.stderr
-    env = BavoEnv("cube_handoff", "clean", image_height=32, image_width=32, n_points=N_POINTS, render_mode=None)
-    try:
-        with pytest.raises(UntrustedCheckpointError, match="subprocess.Popen"):
-            LeRobotPolicyAgent(evil, env)
-    finally:
-        env.close()
+    with _small_env() as env, pytest.raises(UntrustedCheckpointError, match="subprocess.Popen"):
+        LeRobotPolicyAgent(evil, env)
     time.sleep(0.5)
     assert not marker.exists(), "the checkpoint's command ran"
     check_processor_steps(evil, trust_remote_code=True)  # the explicit opt-in lets it through
@@ -139,7 +145,6 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
     from safetensors.torch import load_file, save_file
 
     from lerobot_bavo.checkpoints import CheckpointMismatchError, checkpoint_digest, env_settings
-    from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import LeRobotPolicyAgent, env_kwargs_for_policy
 
     # bavo-eval builds its env from what the checkpoint records
@@ -154,23 +159,15 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
         "observation.images.active": {"type": "VISUAL", "shape": [3, 96, 128]},
         "observation.state": {"type": "STATE", "shape": [21]}}}))
     assert env_settings(act) == {"image_height": 96, "image_width": 128, "environment_state": False}
-    big = BavoEnv("cube_handoff", "clean", n_points=8, render_mode=None)
-    try:
-        with pytest.raises(CheckpointMismatchError, match=r"image_height: checkpoint 96, env 240; image_width: "
-                                                          r"checkpoint 128, env 320"):
-            LeRobotPolicyAgent(act, big)
-    finally:
-        big.close()
+    with _small_env(image_height=240, image_width=320, n_points=8) as big, pytest.raises(
+            CheckpointMismatchError, match=r"image_height: checkpoint 96, env 240; image_width: checkpoint 128, env 320"):
+        LeRobotPolicyAgent(act, big)
     (act / "config.json").write_text(json.dumps({"type": "act", "input_features": {
         "observation.point_cloud": {"type": "STATE", "shape": [100]}}}))
     with pytest.raises(CheckpointMismatchError, match=r"config.json: observation.point_cloud shape \[100\] is not N x 6"):
         env_settings(act)
-    wrong = BavoEnv("cube_handoff", "clean", image_height=32, image_width=32, n_points=64, render_mode=None)
-    try:
-        with pytest.raises(CheckpointMismatchError, match="n_points: checkpoint 32, env 64"):
-            LeRobotPolicyAgent(checkpoint, wrong)
-    finally:
-        wrong.close()
+    with _small_env(n_points=64) as wrong, pytest.raises(CheckpointMismatchError, match="n_points: checkpoint 32, env 64"):
+        LeRobotPolicyAgent(checkpoint, wrong)
 
     # a ManiFlow fed another point count (e.g. by lerobot-eval --env.n_points) names the feature
     from lerobot.policies.factory import make_pre_post_processors
@@ -187,8 +184,7 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
     dropped = sorted(weights)[0]
     del weights[dropped]
     save_file(weights, str(partial / "model.safetensors"))
-    env = BavoEnv("cube_handoff", "clean", image_height=32, image_width=32, n_points=N_POINTS, render_mode=None)
-    try:
+    with _small_env() as env:
         with pytest.raises(CheckpointMismatchError, match="1 missing tensor"):
             LeRobotPolicyAgent(partial, env)
         weights = load_file(str(checkpoint / "model.safetensors"))
@@ -199,8 +195,6 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
         agent = LeRobotPolicyAgent(checkpoint, env)  # the complete one loads and acts
         obs, info = env.reset(seed=0)
         assert np.isfinite(agent.act(obs, info)).all()
-    finally:
-        env.close()
 
     # resume is keyed on the files' digest: a replaced checkpoint at the same path is refused
     from lerobot_bavo.eval.cli import evaluate
@@ -232,7 +226,6 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
 def test_the_point_frame_comes_from_the_training_data_and_a_conflict_is_refused(checkpoint, tmp_path, capsys):
     """A model trained on camera-frame clouds must not be scored on base-frame clouds."""
     from lerobot_bavo.checkpoints import CheckpointMismatchError, env_settings
-    from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.cli import env_kwargs_for_run
     from lerobot_bavo.eval.rollout import LeRobotPolicyAgent
 
@@ -248,12 +241,8 @@ def test_the_point_frame_comes_from_the_training_data_and_a_conflict_is_refused(
     with pytest.raises(SystemExit, match="--point-frame base conflicts with the checkpoint: point_frame: checkpoint "
                                          "'camera'"):
         env_kwargs_for_run(str(cam), "base")
-    env = BavoEnv("cube_handoff", "clean", image_height=32, image_width=32, n_points=N_POINTS, render_mode=None)
-    try:
-        with pytest.raises(CheckpointMismatchError, match="point_frame: checkpoint 'camera', env 'base'"):
-            LeRobotPolicyAgent(cam, env)
-    finally:
-        env.close()
+    with _small_env() as env, pytest.raises(CheckpointMismatchError, match="point_frame: checkpoint 'camera', env 'base'"):
+        LeRobotPolicyAgent(cam, env)
     # nothing records it: base, with a warning that says how to change it
     assert env_kwargs_for_run(str(checkpoint))["point_frame"] == "base"
     assert "pass --point-frame camera" in capsys.readouterr().err
@@ -425,12 +414,9 @@ def test_bad_arguments_and_files_give_clear_errors(tmp_path, capsys):
 
 
 def test_env_stops_after_the_episode_ends_and_renders_nothing_without_a_render_mode():
-    from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.sim import constants as C
 
-    env = BavoEnv("cube_handoff", "clean", image_height=32, image_width=32, n_points=8, render_mode=None,
-                  episode_length=2)
-    try:
+    with _small_env(n_points=8, episode_length=2) as env:
         env.reset(seed=0)
         assert env.render() is None
         home = np.asarray(C.HOME_ACTION)
@@ -441,8 +427,6 @@ def test_env_stops_after_the_episode_ends_and_renders_nothing_without_a_render_m
             env.step(home)
         env.reset(seed=0)
         env.step(home)  # a reset starts a new episode
-    finally:
-        env.close()
 
 
 def test_bad_dataset_metadata_and_nan_are_named(tmp_path):
