@@ -18,13 +18,18 @@ FILES = ("config.json", "model.safetensors", "train_config.json")
 MAX_BYTES = 25 * 1024 * 1024
 
 
-def card(cfg: dict, train: dict, results: dict, wall_min: float | None, name: str) -> str:
+def card(train: dict, results: dict, wall_min: float | None, name: str) -> str:
     pol, ds = train["policy"], train["dataset"]
     steps, batch = train["steps"], train["batch_size"]
     table = ["| task | condition | episodes | SR (%) | TPS (%) |", "|---|---|---|---|---|"]
     for key, cell in sorted(results["cells"].items()):
         task, cond = key.split("/")
         table.append(f"| {task} | {cond} | {cell['n_episodes']} | {cell['sr']:.1f} | {cell['tps']:.1f} |")
+    status = ("\n**Status: it does not succeed yet (SR 0 in every cell below).** It is shipped so that the demo, both\n"
+              "evaluators and the Hub recipe run a real learned policy; the failure ladder in\n"
+              "docs/results/ladder_cube_handoff.md says what the CPU budget reached (not even a privileged-state "
+              "ManiFlow\ngrasps the cube at this budget).\n"
+              if all(c["sr"] == 0 for c in results["cells"].values()) else "")
     wall = f"{wall_min:.0f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
     return f"""---
 library_name: lerobot
@@ -32,7 +37,7 @@ tags: [lerobot, robotics, bavo-bench, a-far, active-vision]
 ---
 
 # {name}: A-FAR on BAVO-Bench Cube Handoff (CPU scale)
-
+{status}
 A-FAR (ManiFlow + WorldQueryFormer future tokens + gated fusion + relational distillation) trained with
 `lerobot-train` on 100 scripted Stage-occlusion demonstrations of `cube_handoff`, at the `{pol['preset']}`
 size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and docs/DESIGN.md for every size
@@ -57,7 +62,7 @@ the paper: 100K x 64 = 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine sc
 {chr(10).join(table)}
 
 Reproduce: `bavo-eval --policy checkpoints/afar_cube_handoff --tasks cube_handoff --conditions clean,stage
---episodes 20 --seed 1000`.
+--episodes {results['episodes']} --seed {results.get('seed', 1000)}`.
 
 ## Use
 - `bavo-eval --policy PATH`, `bash scripts/demo.sh` (this checkpoint is its default), or
@@ -88,10 +93,9 @@ def main() -> None:
     total = sum((args.output / n).stat().st_size for n in names)
     if total > MAX_BYTES:
         raise SystemExit(f"{args.output} is {total / 2**20:.1f} MiB > 25 MiB")
-    cfg = json.loads((src / "config.json").read_text())
     train = json.loads((src / "train_config.json").read_text())
     results = json.loads(args.eval.read_text())
-    (args.output / "README.md").write_text(card(cfg, train, results, args.wall_min, args.output.name))
+    (args.output / "README.md").write_text(card(train, results, args.wall_min, args.output.name))
     print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
 
 
