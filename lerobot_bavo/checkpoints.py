@@ -242,15 +242,40 @@ def env_settings(path: str | Path) -> dict:
     return out
 
 
+INPUTS_RECORD = "bavo_inputs.json"
+
+
+def write_inputs_record(path: str | Path, point_frame: str) -> Path:
+    """Record beside a checkpoint's weights the point frame its training clouds were in, so that it loads
+    with the right env settings on a machine without its training data (see `recorded_point_frame`)."""
+    if point_frame not in ("base", "camera"):
+        raise ValueError(f"point_frame must be 'base' or 'camera', got {point_frame!r}")
+    out = Path(path) / INPUTS_RECORD
+    out.write_text(json.dumps({"point_frame": point_frame}, indent=2) + "\n")
+    return out
+
+
 def recorded_point_frame(path: str | Path) -> str | None:
     """The point-cloud frame ("base" / "camera") the checkpoint at `path` was trained on, or None if no file
     on this machine records it.
 
-    LeRobot's policy config has no place for it; lerobot-train writes `train_config.json` beside the
+    A checkpoint that travels without its data (the shipped one, a Hub download) carries `bavo_inputs.json`
+    (`INPUTS_RECORD`, written by `write_inputs_record`), which wins. Otherwise: LeRobot's policy config has no
+    place for it; lerobot-train writes `train_config.json` beside the
     weights, whose `env` (when an eval env was configured) or `dataset` names where it came from. The
     `bavo-collect` record of that dataset (`meta/bavo_collection.json`) holds `settings.point_frame`; a
     training view (`<root>_points`, see `lerobot_bavo.datasets.views`) has none, so its source folder is
     read instead. A relative dataset root is taken from the current folder, as lerobot-train did."""
+    own = Path(path) / INPUTS_RECORD
+    if own.is_file():
+        try:
+            frame = json.loads(own.read_text())["point_frame"]
+        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as exc:
+            raise CheckpointMismatchError(f"{own} is not a valid inputs record ({exc!r}); expected "
+                                          '{"point_frame": "base"} or {"point_frame": "camera"}') from exc
+        if frame not in ("base", "camera"):
+            raise CheckpointMismatchError(f"{own}: point_frame must be 'base' or 'camera', got {frame!r}")
+        return frame
     file = Path(path) / "train_config.json"
     if not file.is_file():
         return None

@@ -82,6 +82,8 @@ def main() -> None:
     p.add_argument("--eval", type=Path, required=True, help="bavo-eval results.json of this checkpoint")
     p.add_argument("--output", type=Path, default=Path("checkpoints/afar_cube_handoff"))
     p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
+    p.add_argument("--point-frame", choices=("base", "camera"), default=None,
+                   help="frame of the training clouds; default: read from the training dataset's bavo-collect record")
     args = p.parse_args()
     src = args.run / "checkpoints" / args.step / "pretrained_model"
     if not (src / "config.json").is_file():
@@ -90,6 +92,12 @@ def main() -> None:
     names = list(FILES) + [f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))]
     for name in names:
         shutil.copy2(src / name, args.output / name)
+    from lerobot_bavo.checkpoints import recorded_point_frame, write_inputs_record
+
+    frame = args.point_frame or recorded_point_frame(src)
+    if frame is None:
+        raise SystemExit(f"the training data of {src} is not on this machine; pass --point-frame base|camera")
+    names.append(write_inputs_record(args.output, frame).name)
     total = sum((args.output / n).stat().st_size for n in names)
     if total > MAX_BYTES:
         raise SystemExit(f"{args.output} is {total / 2**20:.1f} MiB > 25 MiB")

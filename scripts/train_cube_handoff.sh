@@ -11,7 +11,8 @@
 #   bash scripts/train_cube_handoff.sh afar         # rung 3: A-FAR (same budget and seed as rung 2)
 #   bash scripts/train_cube_handoff.sh eval RUN     # bavo-eval of outputs/train/RUN (clean + stage, 20 seeds)
 #
-# Environment overrides: STEPS, BATCH, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES.
+# Environment overrides: STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, TAG
+# (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/maniflow_state_b256_s1000).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
@@ -25,6 +26,9 @@ PRESET="${PRESET:-cpu_fast}"
 SEED="${SEED:-1000}"
 DEVICE="${DEVICE:-cpu}"
 EPISODES="${EPISODES:-20}"
+LR="${LR:-}"          # empty: the policy's preset (1e-4, the paper's)
+WARMUP="${WARMUP:-}"  # empty: the preset's 500 warm-up steps
+TAG="${TAG:-}"
 
 train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
     local name=$1 type=$2 view=$3
@@ -41,7 +45,8 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
         --dataset.repo_id="${REPO}_$view" --dataset.root="${DS}_$view" \
         --policy.device="$DEVICE" --policy.push_to_hub=false --num_workers=0 \
         --batch_size="$BATCH" --steps="$STEPS" --save_freq="$SAVE_FREQ" --log_freq=50 --seed="$SEED" \
-        --output_dir="$out" --wandb.enable=false "$@" 2>&1 | tee "outputs/train/$name.log"
+        --output_dir="$out" --wandb.enable=false ${LR:+--policy.optimizer_lr="$LR"} \
+        ${WARMUP:+--policy.scheduler_warmup_steps="$WARMUP"} "$@" 2>&1 | tee "outputs/train/$name.log"
 }
 
 case "${1:-}" in
@@ -52,9 +57,9 @@ case "${1:-}" in
         for v in points state; do
             [ -d "${DS}_$v" ] || .venv/bin/python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
         done ;;
-    state) train "maniflow_state_s$SEED" maniflow state ;;
-    maniflow) train "maniflow_s$SEED" maniflow points ;;
-    afar) train "afar_s$SEED" afar points ;;
+    state) train "maniflow_state${TAG}_s$SEED" maniflow state ;;
+    maniflow) train "maniflow${TAG}_s$SEED" maniflow points ;;
+    afar) train "afar${TAG}_s$SEED" afar points ;;
     eval)
         run=${2:?usage: eval RUN [STEP]}
         step=${3:-last}

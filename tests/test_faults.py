@@ -249,6 +249,39 @@ def test_the_point_frame_comes_from_the_training_data_and_a_conflict_is_refused(
     assert env_kwargs_for_run(str(checkpoint), "camera")["point_frame"] == "camera"
 
 
+def test_a_checkpoint_without_its_data_carries_its_point_frame(checkpoint, tmp_path):
+    """A shipped / Hub checkpoint has no training dataset beside it: its own bavo_inputs.json says the frame,
+    wins over train_config.json, and a broken record is an error naming the file."""
+    from lerobot_bavo.checkpoints import (
+        INPUTS_RECORD,
+        CheckpointMismatchError,
+        env_settings,
+        recorded_point_frame,
+        write_inputs_record,
+    )
+
+    cam = _copy(checkpoint, tmp_path / "cam")
+    assert recorded_point_frame(cam) is None  # nothing on this machine records it
+    write_inputs_record(cam, "camera")
+    assert recorded_point_frame(cam) == "camera"
+    assert env_settings(cam)["point_frame"] == "camera"
+    (cam / INPUTS_RECORD).write_text('{"point_frame": "world"}')
+    with pytest.raises(CheckpointMismatchError, match="bavo_inputs.json: point_frame must be 'base' or 'camera'"):
+        recorded_point_frame(cam)
+    (cam / INPUTS_RECORD).write_text("{not json")
+    with pytest.raises(CheckpointMismatchError, match="bavo_inputs.json is not a valid inputs record"):
+        recorded_point_frame(cam)
+    with pytest.raises(ValueError, match="point_frame must be"):
+        write_inputs_record(cam, "world")
+
+
+def test_the_shipped_checkpoint_records_its_point_frame():
+    from lerobot_bavo.checkpoints import recorded_point_frame
+
+    shipped = Path(__file__).resolve().parents[1] / "checkpoints" / "afar_cube_handoff"
+    assert recorded_point_frame(shipped) == "base"  # bavo-collect's default, what its data was collected in
+
+
 # ----------------------------------------------------------------------------- 3. torn episodes.jsonl
 def test_a_torn_last_log_line_is_dropped_and_a_corrupt_middle_line_is_named(tmp_path, capsys):
     from lerobot_bavo.eval.cli import read_episode_log
