@@ -25,16 +25,16 @@ def main() -> None:
     p.add_argument("--task", default="cube_handoff")
     p.add_argument("--output", type=Path, required=True)
     args = p.parse_args()
-    series: dict[str, list[tuple[int, float, float, int]]] = defaultdict(list)
+    series: dict[str, list[tuple[int, float, float, int, int, int]]] = defaultdict(list)
     for spec in args.points:
         label, step, batch, path = spec.split(":", 3)
         cell = json.loads(Path(path).read_text())["cells"][f"{args.task}/{args.condition}"]
-        series[label].append((int(step) * int(batch), cell["sr"], cell["tps"], cell["n_episodes"]))
+        series[label].append((int(step) * int(batch), cell["sr"], cell["tps"], cell["n_episodes"], int(step), int(batch)))
     print(f"| policy | samples | steps x batch | {args.condition} SR (%) | {args.condition} TPS (%) | episodes |")
     print("|---|---|---|---|---|---|")
     for label, pts in series.items():
-        for samples, sr, tps, n in sorted(pts):
-            print(f"| {label} | {samples:,} | {samples // 64} x 64 | {sr:.1f} | {tps:.1f} | {n} |")
+        for samples, sr, tps, n, step, batch in sorted(pts):
+            print(f"| {label} | {samples:,} | {step} x {batch} | {sr:.1f} | {tps:.1f} | {n} |")
 
     import matplotlib
 
