@@ -632,3 +632,23 @@ def test_afar_fusion_gate_has_its_own_optimizer_group():
     n_params = sum(p.numel() for g in opt.param_groups for p in g["params"])
     assert n_params == sum(p.numel() for p in policy.model.parameters())
     assert AfarConfig(preset="paper").fusion_gate_lr_scale == 1.0 and AfarConfig(preset="cpu_fast").fusion_gate_lr_scale == 10.0
+
+
+def test_sampled_chunks_are_clipped_to_the_normalised_data_range():
+    """A 1-2 step flow sample can leave [-1, 1]; with clip_actions (default) the chunk is clamped there, and
+    without it the raw sample comes back unchanged. A large random init makes the raw sample overshoot."""
+    torch.manual_seed(0)
+    clipped, raw = make_maniflow(), make_maniflow(clip_actions=False)
+    randomize_zero_init(clipped, seed=0)
+    raw.load_state_dict(clipped.state_dict())
+    for p in clipped.ema_model.parameters():
+        p.data.mul_(8.0)
+    raw.load_state_dict(clipped.state_dict())
+    batch = synthetic_batch(b=4, teacher=False)
+    noise = torch.randn(4, 16, ACTION_DIM, generator=torch.Generator().manual_seed(3)) * 3
+    a_raw = raw.generate_actions(batch, noise=noise)
+    a_clip = clipped.generate_actions(batch, noise=noise)
+    assert a_raw.abs().max() > 1.0  # the case the clamp exists for
+    torch.testing.assert_close(a_clip, a_raw.clamp(-1.0, 1.0))
+    with pytest.raises(ValueError, match="clip_actions"):
+        make_maniflow(normalization_mapping={"VISUAL": "IDENTITY", "STATE": "MIN_MAX", "ACTION": "MEAN_STD"})

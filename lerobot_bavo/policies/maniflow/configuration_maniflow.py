@@ -124,6 +124,10 @@ class ManiFlowConfig(PreTrainedConfig):
             steps thanks to the consistency objective (its released scripts use 10).
         use_ema_for_inference: Predict actions with the EMA copy (ManiFlow's eval model). The EMA copy is always
             kept, since it is the consistency teacher.
+        clip_actions: Clamp sampled chunks to [-1, 1], the range every MIN_MAX-normalised action of the dataset
+            lies in, before unnormalising (as Diffusion Policy's `clip_sample`). Why: a 1-2 step flow sample can
+            overshoot the data range (measured: gripper commands of -0.4 on a [0, 1] gripper), which no
+            demonstration ever shows.
         ema_power: EMA warm-up power: decay at update k is clip(1 - (1 + k) ** -ema_power, 0, ema_max_decay).
         ema_max_decay: Upper bound of the EMA decay.
         flow_batch_ratio: Fraction of each batch trained with plain flow matching; the remaining
@@ -176,6 +180,7 @@ class ManiFlowConfig(PreTrainedConfig):
     # Inference.
     num_inference_steps: int = 2
     use_ema_for_inference: bool = True
+    clip_actions: bool = True
 
     # Training objective and EMA.
     ema_power: float = 0.75
@@ -225,6 +230,12 @@ class ManiFlowConfig(PreTrainedConfig):
             raise ValueError(f"`point_channels` must be 3 (xyz) or 6 (xyz + rgb). Got {self.point_channels}.")
         if self.num_inference_steps < 1:
             raise ValueError(f"`num_inference_steps` must be >= 1. Got {self.num_inference_steps}.")
+        action_mode = self.normalization_mapping.get("ACTION")
+        if self.clip_actions and action_mode != NormalizationMode.MIN_MAX:
+            raise ValueError(
+                "`clip_actions=True` clamps normalised actions to [-1, 1], which is their range only under MIN_MAX "
+                f"normalisation; ACTION is normalised with {action_mode}. Set `--policy.clip_actions=false`."
+            )
         if not 0.0 <= self.flow_batch_ratio <= 1.0:
             raise ValueError(f"`flow_batch_ratio` must be in [0, 1]. Got {self.flow_batch_ratio}.")
         if self.consistency_t_bins < 1:

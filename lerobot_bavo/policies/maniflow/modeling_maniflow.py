@@ -446,8 +446,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
             noise = torch.randn(shape, generator=generator, device=context.device, dtype=context.dtype)
         elif tuple(noise.shape) != shape:
             raise ValueError(f"`noise` must have shape {shape}. Got {tuple(noise.shape)}.")
-        return model.sample(context, noise.to(device=context.device, dtype=context.dtype),
-                            self.config.num_inference_steps)
+        actions = model.sample(context, noise.to(device=context.device, dtype=context.dtype),
+                               self.config.num_inference_steps)
+        return actions.clamp(-1.0, 1.0) if self.config.clip_actions else actions
 
     @torch.no_grad()
     def predict_action_chunk(
