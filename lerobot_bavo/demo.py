@@ -80,10 +80,12 @@ def run_demo(task: str, condition: str, seeds: list[int], output_dir: Path, agen
 
 
 def main(argv: list[str] | None = None) -> None:
+    from lerobot_bavo.envs.conditions import CONDITIONS
+
     parser = argparse.ArgumentParser(prog="bavo-demo", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="cube_handoff", help="benchmark task (default: cube_handoff)")
-    parser.add_argument("--condition", default="stage", choices=("clean", "stage", "random"),
+    parser.add_argument("--condition", default="stage", choices=tuple(CONDITIONS),
                         help="visibility condition (default: stage)")
     parser.add_argument("--agents", default=",".join(AGENTS),
                         help="comma-separated agents to run, from: afar (a LeRobot checkpoint), expert "

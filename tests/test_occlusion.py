@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
-from lerobot_bavo.envs.occlusion import OcclusionSchedule, stage_index
+from lerobot_bavo.envs.conditions import OcclusionSchedule
+from lerobot_bavo.envs.occlusion import stage_index
 from lerobot_bavo.envs.visibility import CVGAccumulator, panel_hides
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.sim.rendering import SceneRenderer

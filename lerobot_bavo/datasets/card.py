@@ -10,20 +10,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.envs.conditions import CONDITIONS
 
 PAPER = "Recovering the View: Benchmarking Physical Active Vision for Occlusion Recovery in Robotic Manipulation (BAVO-Bench / A-FAR), arXiv 2609.37292"
 
-CONDITION_TEXT = {
-    "clean": "**Clean**: no artificial occlusion.",
-    "stage": (
-        "**Stage Occlusion** (the paper's training condition): an occluder panel is placed on the line of sight "
-        "from the active camera to a task-relevant target at reset, and re-placed for a new target at the task's two "
-        "stage transitions (three occlusion phases per episode). The scripted demonstrator pauses manipulation after "
-        "each event, moves the camera arm to a view that sees the target past the occluder, then resumes "
-        "(paper Sec. 3.2)."
-    ),
-    "random": "**Random-time Occlusion**: occlusion events at reset and at six randomly timed triggers.",
-}
 
 
 def _feature_rows(settings: dict) -> list[str]:
@@ -61,10 +51,12 @@ def card_description(sidecar: dict, repo_id: str) -> str:
     seeds = [e["seed"] for e in kept]
     frames = sum(e["length"] for e in kept)
     stage_targets = st.get("stage_targets") or []
+    condition = CONDITIONS.get(st["condition"])
+    condition_text = condition.description if condition is not None and condition.description else st["condition"]
     lines = [
         f"# BAVO-Bench demonstrations: `{st['task']}` under {st['condition']} occlusion",
         "",
-        f"Task: *{st.get('task_description', st['task'])}* Condition: {CONDITION_TEXT.get(st['condition'], st['condition'])}",
+        f"Task: *{st.get('task_description', st['task'])}* Condition: {condition_text}",
         "",
         f"Stage targets (`annotation.occlusion_target` indexes them): {', '.join(f'{i}: {t}' for i, t in enumerate(stage_targets))}.",
         "",

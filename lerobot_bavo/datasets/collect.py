@@ -669,10 +669,12 @@ def collect(cfg: CollectConfig) -> dict:
 
 # ================================================================== CLI
 def build_parser() -> argparse.ArgumentParser:
+    from lerobot_bavo.envs.conditions import CONDITIONS
+
     p = argparse.ArgumentParser(prog="bavo-collect", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", required=True, help="benchmark task, e.g. cube_handoff")
-    p.add_argument("--condition", default="stage", choices=("clean", "stage", "random"),
+    p.add_argument("--condition", default="stage", choices=tuple(CONDITIONS),
                    help="visibility condition (the paper trains on stage)")
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted")
     p.add_argument("--repo-id", required=True, help="<user>/<name>, e.g. me/bavo_cube_handoff")

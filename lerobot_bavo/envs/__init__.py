@@ -13,7 +13,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
-from lerobot_bavo.envs.tasks import GYM_NAMES, TASK_NAMES, TASKS
+from lerobot_bavo.envs.tasks import TASKS, gym_name
 
 GYM_NAMESPACE = "lerobot_bavo"
 ENTRY_POINT = "lerobot_bavo.envs.bavo_env:BavoEnv"
@@ -21,13 +21,13 @@ ENTRY_POINT = "lerobot_bavo.envs.bavo_env:BavoEnv"
 
 def gym_id(task: str) -> str:
     """The gym id of a BAVO-Bench task, e.g. `gym_id("cube_handoff") == "lerobot_bavo/CubeHandoff-v0"`."""
-    if task not in GYM_NAMES:
-        raise ValueError(f"unknown task {task!r}; BAVO-Bench tasks are {', '.join(TASK_NAMES)}")
-    return f"{GYM_NAMESPACE}/{GYM_NAMES[task]}-v0"
+    TASKS.lookup(task)  # raises for unknown names, listing the registered ones
+    return f"{GYM_NAMESPACE}/{gym_name(task)}-v0"
 
 
 def register_envs() -> list[str]:
-    """Register every implemented task with gymnasium; idempotent. Returns the ids registered now."""
+    """Register every task in `TASKS` with gymnasium; idempotent (call again after `register_task` to
+    give a task registered later its gym id). Returns the ids registered now."""
     registered = []
     for name, task_cls in TASKS.items():
         env_id = gym_id(name)

@@ -15,8 +15,8 @@ Observation (copies, never views into simulator memory):
 Reward: task progress d / 5 (deepest milestone so far, monotone), so LeRobot's
 `avg_max_reward` is the Task Progress Score. `terminated` and `info["is_success"]` at M5.
 Privileged information (milestone flags, object poses, camera pose) only goes into `info`.
-Conditions: "clean" has no occluder; "stage" and "random" place the benchmark occluder at reset
-and at the Stage transitions / Random-time triggers (`envs/occlusion.py`); `info["occlusion"]`
+Conditions (`envs/conditions.py`): "clean" has no occluder; "stage" and "random" place the benchmark
+occluder at reset and at the Stage transitions / Random-time triggers (`envs/occlusion.py`); `info["occlusion"]`
 reports the current event and the target's per-step visibility, and under "random"
 `info["cvg"]` at episode end holds the events' CVG (`envs/visibility.py`). The visibility
 renders use their own GL context and never touch observations, actions or dynamics.
@@ -38,11 +38,11 @@ from lerobot_bavo.envs.pointcloud import (
     camera_pose_from_mujoco,
     intrinsics_from_fovy,
 )
+from lerobot_bavo.envs.conditions import Condition, OcclusionSchedule, get_condition
 from lerobot_bavo.envs.occlusion import (
     OCCLUDER_HALF_EXTENTS,
     OccluderPlacer,
     OcclusionEvent,
-    OcclusionSchedule,
     stage_index,
 )
 from lerobot_bavo.envs.tasks import Task, make_task
@@ -52,7 +52,6 @@ from lerobot_bavo.sim.kinematics import make_arm_kinematics
 from lerobot_bavo.sim.rendering import SceneRenderer
 from lerobot_bavo.sim.scene import add_occluder, build_base_spec
 
-CONDITIONS = ("clean", "stage", "random")
 POINT_FRAMES = ("base", "camera")
 # Point-cloud crop box in the base frame (metres): the table's extent, from just above the table
 # top (so the bare table surface is not sampled) to 0.6 m above it.
@@ -76,8 +75,9 @@ class BavoEnv(gym.Env):
     """A BAVO-Bench task under a visibility condition.
 
     Args:
-        task: one of `lerobot_bavo.envs.tasks.TASK_NAMES`, or a `Task` instance (custom tasks).
-        condition: "clean", "stage" or "random".
+        task: a registered task's name (`lerobot_bavo.envs.tasks.TASKS`) or a `Task` instance.
+        condition: a registered condition's name ("clean", "stage", "random"; `envs/conditions.py`)
+            or a `Condition` instance.
         image_height, image_width: active-camera image size in pixels.
         n_points: points per cloud (farthest-point sampled).
         point_frame: "base" (robot-base frame, default) or "camera" (ablation).
@@ -87,9 +87,9 @@ class BavoEnv(gym.Env):
         render_mode: "rgb_array" (third-person view beside the active view) or None.
         render_height: height of each of the two panels of `render()`.
         compute_cvg: render the frozen-camera counterfactual every step of an open recovery
-            window and report CVG (default: only under "random", the condition the paper
-            reports CVG for). The realised visibility of the current target is always recorded
-            under occluded conditions.
+            window and report CVG (default: the condition's `reports_cvg`, true only under
+            "random", the condition the paper reports CVG for). The realised visibility of the
+            current target is always recorded under occluded conditions.
         visibility_scale: resolution of the privileged visibility renders relative to the
             observation image (V is a pixel ratio; 0.5 keeps it cheap).
         environment_state: also observe the task's object poses (`environment_state`, privileged;
@@ -101,7 +101,7 @@ class BavoEnv(gym.Env):
     def __init__(
         self,
         task: str | Task = "cube_handoff",
-        condition: str = "clean",
+        condition: str | Condition = "clean",
         image_height: int = 240,
         image_width: int = 320,
         n_points: int = 256,
@@ -114,8 +114,7 @@ class BavoEnv(gym.Env):
         visibility_scale: float = 0.5,
         environment_state: bool = False,
     ):
-        if condition not in CONDITIONS:
-            raise ValueError(f"unknown condition {condition!r}; expected one of {CONDITIONS}")
+        self.condition_rule = get_condition(condition)  # unknown names raise, listing the registered ones
         if point_frame not in POINT_FRAMES:
             raise ValueError(f"unknown point_frame {point_frame!r}; expected one of {POINT_FRAMES}")
         if render_mode not in (None, "rgb_array"):
@@ -124,7 +123,7 @@ class BavoEnv(gym.Env):
             raise ValueError("image size must be >= 16 pixels and n_points >= 1")
 
         self.task = task if isinstance(task, Task) else make_task(task)
-        self.condition = condition
+        self.condition = self.condition_rule.name
         self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)
         self.render_mode = render_mode
         self.render_height = render_height
@@ -137,10 +136,11 @@ class BavoEnv(gym.Env):
         spec.visual.global_.offwidth = max(640, image_width, 4 * render_height // 3)
         spec.visual.global_.offheight = max(480, image_height, render_height)
         self.task.build(spec)
-        self.occluded = condition != "clean"
+        self.occluded = self.condition_rule.occluded
         if self.occluded:
             add_occluder(spec, OCCLUDER_HALF_EXTENTS)
-        self.compute_cvg = (condition == "random") if compute_cvg is None else bool(compute_cvg and self.occluded)
+        self.compute_cvg = bool((self.condition_rule.reports_cvg if compute_cvg is None else compute_cvg)
+                                and self.occluded)
         self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
         self.task.bind(self.model)
@@ -209,7 +209,7 @@ class BavoEnv(gym.Env):
         self._ended = False
         if self.occluded:
             # Drawn after the task's reset, so a seed gives the same layout under every condition.
-            self._schedule = OcclusionSchedule.sample(self.condition, self.task.stage_transitions, self.np_random)
+            self._schedule = OcclusionSchedule.sample(self.condition_rule, self.task.stage_transitions, self.np_random)
             self._update_occlusion()
         return self._observation(), self._info()
 

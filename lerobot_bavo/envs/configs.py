@@ -15,8 +15,9 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE, OBS_STR
 
-from lerobot_bavo.envs.bavo_env import CONDITIONS, POINT_FRAMES
-from lerobot_bavo.envs.tasks import TASK_NAMES, TASKS, environment_state_dim
+from lerobot_bavo.envs.bavo_env import POINT_FRAMES
+from lerobot_bavo.envs.conditions import CONDITIONS
+from lerobot_bavo.envs.tasks import TASKS, environment_state_dim
 from lerobot_bavo.sim.constants import ACTION_DIM, CONTROL_HZ
 
 from . import GYM_NAMESPACE, gym_id
@@ -43,11 +44,12 @@ class BavoEnvConfig(EnvConfig):
     """One BAVO-Bench task under one visibility condition, for `lerobot-eval` / `lerobot-train`.
 
     Args:
-        task: benchmark task name, one of `lerobot_bavo.envs.tasks.TASK_NAMES` ("cube_handoff",
+        task: a registered task's name, one of `lerobot_bavo.envs.tasks.TASKS` ("cube_handoff",
             "block_stacking", ...). The gym id is `lerobot_bavo/<GymName>-v0`, e.g.
-            `lerobot_bavo/CubeHandoff-v0`; only the tasks in `TASKS` are implemented so far.
-        condition: visibility condition, "clean" (no occluder), "stage" (occluder placed at
-            stage transitions) or "random" (random-time occlusion events).
+            `lerobot_bavo/CubeHandoff-v0`.
+        condition: a registered visibility condition (`lerobot_bavo.envs.conditions`): "clean" (no
+            occluder), "stage" (occluder placed at stage transitions) or "random" (random-time
+            occlusion events).
         fps: control rate in Hz; the simulator runs at 25 Hz, so this is informational (it sets the
             fps of recorded datasets) and must be 25.
         episode_length: control steps before truncation (`TimeLimit`, read by LeRobot's rollout as
@@ -90,10 +92,8 @@ class BavoEnvConfig(EnvConfig):
     )
 
     def __post_init__(self):
-        if self.task not in TASK_NAMES:
-            raise ValueError(f"unknown BAVO-Bench task {self.task!r}; expected one of {', '.join(TASK_NAMES)}")
-        if self.condition not in CONDITIONS:
-            raise ValueError(f"unknown condition {self.condition!r}; expected one of {', '.join(CONDITIONS)}")
+        TASKS.lookup(self.task)  # raises for unknown names, listing the registered ones
+        CONDITIONS.lookup(self.condition)  # raises for unknown names, listing the registered ones
         if self.point_frame not in POINT_FRAMES:
             raise ValueError(f"unknown point_frame {self.point_frame!r}; expected one of {', '.join(POINT_FRAMES)}")
         if self.render_mode not in RENDER_MODES:
@@ -146,13 +146,3 @@ class BavoEnvConfig(EnvConfig):
             "max_episode_steps": self.episode_length,
             "episode_length": self.episode_length,
         }
-
-    def create_envs(self, n_envs: int, use_async_envs: bool = False):
-        """`{"bavo": {0: VectorEnv}}`, as LeRobot's default; a clear error for a task that is part of
-        the benchmark but not implemented yet (instead of gymnasium's NameNotFound)."""
-        if self.task not in TASKS:
-            raise NotImplementedError(
-                f"task {self.task!r} is part of BAVO-Bench but not implemented in this version; "
-                f"available: {', '.join(TASKS)}"
-            )
-        return super().create_envs(n_envs=n_envs, use_async_envs=use_async_envs)

@@ -1,8 +1,8 @@
-"""Occlusion conditions (paper Sec. 3.1, App. A): when events happen and where the occluder goes.
+"""Occlusion (paper Sec. 3.1, App. A): Random-time triggers, Stage indices and where the occluder goes.
 
-- Schedules: Clean has no event; Stage has one at reset and one at each of the task's two
-  stage transitions; Random-time has one at reset and one trigger sampled in each of six windows.
-  An event's target is the task's Stage target for the stage reached at that time.
+- Timing helpers: `sample_random_triggers` (one trigger per window, gaps > 60) and `stage_index`
+  (which Stage target applies at a milestone depth). When events start is each condition's rule
+  (`envs/conditions.py`); an event's target is the task's Stage target for the stage reached then.
 - Placement: candidate poses for a thin camera-facing panel on the line of sight from the active
   camera to the target; the first candidate (in a fixed order) that suppresses the target's
   visibility to V <= `VISIBILITY_THRESHOLD` and keeps clearance from the robot, the objects and
@@ -16,7 +16,7 @@ reproduces the whole schedule.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -26,7 +26,6 @@ __all__ = [
     "sample_random_triggers",
     "VISIBILITY_THRESHOLD",
     "OCCLUDER_HALF_EXTENTS",
-    "OcclusionSchedule",
     "OcclusionEvent",
     "stage_index",
     "panel_rotation_facing",
@@ -100,45 +99,6 @@ def stage_index(depth: int, transitions: tuple[int, int]) -> int:
     """Which Stage target applies at milestone depth `depth` (0 initial, 1 after the first
     transition milestone, 2 after the second)."""
     return int(depth >= transitions[0]) + int(depth >= transitions[1])
-
-
-@dataclass
-class OcclusionSchedule:
-    """When occlusion events happen in one episode.
-
-    Args:
-        condition: "clean", "stage" or "random".
-        transitions: the task's two Stage transition milestones.
-        triggers: Random-time trigger steps (sampled at reset); empty otherwise.
-    """
-
-    condition: str
-    transitions: tuple[int, int]
-    triggers: list[int] = field(default_factory=list)
-    _stage_fired: int = 0
-
-    @classmethod
-    def sample(cls, condition: str, transitions: tuple[int, int], rng: np.random.Generator) -> "OcclusionSchedule":
-        triggers = sample_random_triggers(rng) if condition == "random" else []
-        return cls(condition, tuple(transitions), triggers)
-
-    def due(self, step: int, depth: int) -> bool:
-        """Whether an event starts at control step `step` given the milestone depth reached.
-
-        Step 0 (reset) always starts the initial event under stage and random. Stage fires once
-        per transition milestone, when it is first reached.
-        """
-        if self.condition == "clean":
-            return False
-        if step == 0:
-            return True
-        if self.condition == "random":
-            return step in self.triggers
-        stage = stage_index(depth, self.transitions)
-        if stage > self._stage_fired:
-            self._stage_fired = stage
-            return True
-        return False
 
 
 # --- placement ---

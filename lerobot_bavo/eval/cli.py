@@ -63,8 +63,7 @@ def _run_job(job: dict) -> dict:
         for old in _CACHE.values():
             old[0].close()
         _CACHE.clear()
-        env = BavoEnv(task=job["task"], condition=job["condition"], compute_cvg=job["condition"] == "random",
-                      **env_kwargs)
+        env = BavoEnv(task=job["task"], condition=job["condition"], **env_kwargs)
         _CACHE[key] = (env, make_agent(job["policy"], env, trust_remote_code=job.get("trust_remote_code", False)))
     env, agent = _CACHE[key]
     video = Path(job["video"]) if job.get("video") else None
@@ -198,16 +197,14 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     from tqdm import tqdm
 
     from lerobot_bavo.checkpoints import CheckpointMismatchError, check_processor_steps, checkpoint_digest
-    from lerobot_bavo.envs.bavo_env import CONDITIONS
-    from lerobot_bavo.envs.tasks import TASK_NAMES, TASKS
+    from lerobot_bavo.envs.conditions import CONDITIONS
+    from lerobot_bavo.envs.tasks import TASKS
     from lerobot_bavo.eval.rollout import EXPERT_POLICIES
     from lerobot_bavo.runtime.process import LockedError, exclusive_lock
 
     for t in tasks:
-        if t not in TASK_NAMES:
-            raise SystemExit(f"bavo-eval: unknown task {t!r}; choose from {', '.join(TASK_NAMES)}")
         if t not in TASKS:
-            raise SystemExit(f"bavo-eval: task {t!r} is not implemented in this version ({', '.join(TASKS)} are)")
+            raise SystemExit(f"bavo-eval: unknown task {t!r}; choose from {', '.join(TASKS)}")
     for c in conditions:
         if c not in CONDITIONS:
             raise SystemExit(f"bavo-eval: unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
@@ -324,7 +321,7 @@ def main(argv: list[str] | None = None) -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--policy", required=True,
                         help="LeRobot checkpoint dir (.../pretrained_model), 'expert' or 'expert-frozen-camera'")
-    parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default: all implemented)")
+    parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default: all registered)")
     parser.add_argument("--conditions", default="clean,stage,random", help="comma-separated conditions")
     parser.add_argument("--episodes", type=int, default=20, help="episodes per (task, condition) (default 20)")
     parser.add_argument("--seed", type=int, default=1000, help="first seed (LeRobot's default start seed)")

@@ -1,19 +1,18 @@
 """Privileged scripted experts, one module per task (`experts/<task>.py`), via `make_expert`.
 
-Each expert module defines one `ScriptedExpert` subclass whose `task_name` equals the module
-name; the registry imports the modules that exist (import errors propagate).
+Every `ScriptedExpert` subclass defined in a module of this package is registered under its
+`task_name` (walking the package; import errors propagate); experts defined elsewhere join with
+`@register_expert`.
 """
 
 from __future__ import annotations
 
-from lerobot_bavo.envs.tasks import TASK_NAMES
 from lerobot_bavo.experts.base import ScriptedExpert
-from lerobot_bavo.registry import discover
+from lerobot_bavo.registry import Registry
 
-
-EXPERTS: dict[str, type[ScriptedExpert]] = discover(
-    __name__, TASK_NAMES, lambda cls, name: issubclass(cls, ScriptedExpert) and cls.task_name == name
-)
+EXPERTS = Registry("expert", key="task_name")
+register_expert = EXPERTS.register
+EXPERTS.discover(__name__, ScriptedExpert)
 
 
 def make_expert(env, seed: int | None = None, frozen_camera: bool = False) -> ScriptedExpert:
@@ -27,4 +26,4 @@ def make_expert(env, seed: int | None = None, frozen_camera: bool = False) -> Sc
     return EXPERTS[name](env, seed=seed, frozen_camera=frozen_camera)
 
 
-__all__ = ["EXPERTS", "ScriptedExpert", "make_expert"]
+__all__ = ["EXPERTS", "ScriptedExpert", "make_expert", "register_expert"]

@@ -1,8 +1,9 @@
-"""Task registry: one module per task (`lerobot_bavo/envs/tasks/<name>.py`), found by name.
+"""Task registry: every `Task` subclass defined in a module of this package, found by walking it.
 
-Each task module defines one `Task` subclass whose `name` equals the module name. The registry
-imports the modules that exist, so adding a task is adding its file; import errors in a task
-module propagate (they are bugs, not missing tasks).
+Adding a benchmark task is adding its file (`lerobot_bavo/envs/tasks/<name>.py` with one `Task`
+subclass); tasks defined elsewhere (plugins, tests) join with `@register_task`. Import errors in a
+task module propagate (they are bugs, not missing tasks). `TASKS` lists them in the paper's order
+(`Task.order`), then by registration.
 """
 
 from __future__ import annotations
@@ -10,35 +11,21 @@ from __future__ import annotations
 import functools
 
 from lerobot_bavo.envs.tasks.base import Task
-from lerobot_bavo.registry import discover
+from lerobot_bavo.registry import Registry
 
-# The five BAVO-Bench tasks in the paper's order; gym ids are `lerobot_bavo/<GymName>-v0`.
-TASK_NAMES = ("cube_handoff", "block_stacking", "drawer_stowing", "slide_retrieval", "dustpan_sweeping")
-GYM_NAMES = {
-    "cube_handoff": "CubeHandoff",
-    "block_stacking": "BlockStacking",
-    "drawer_stowing": "DrawerStowing",
-    "slide_retrieval": "SlideRetrieval",
-    "dustpan_sweeping": "DustpanSweeping",
-}
-
-
-# Tasks implemented in this version, in the paper's order.
-TASKS: dict[str, type[Task]] = discover(
-    __name__, TASK_NAMES, lambda cls, name: issubclass(cls, Task) and cls.name == name
-)
+TASKS = Registry("task")
+register_task = TASKS.register
+TASKS.discover(__name__, Task, order=lambda cls: cls.order)
 
 
 def make_task(name: str) -> Task:
-    """Instantiate a task by benchmark name, with a clear error for unknown or missing tasks."""
-    if name not in TASK_NAMES:
-        raise ValueError(f"unknown task {name!r}; BAVO-Bench tasks are {', '.join(TASK_NAMES)}")
-    if name not in TASKS:
-        raise NotImplementedError(
-            f"task {name!r} is part of BAVO-Bench but not implemented in this version; "
-            f"available: {', '.join(TASKS)}"
-        )
-    return TASKS[name]()
+    """Instantiate a registered task by name; unknown names raise a ValueError listing the registered ones."""
+    return TASKS.lookup(name)()
+
+
+def gym_name(task: str) -> str:
+    """The CamelCase name in a task's gym id: "cube_handoff" -> "CubeHandoff"."""
+    return "".join(part.capitalize() for part in task.split("_"))
 
 
 @functools.lru_cache(maxsize=None)
@@ -58,4 +45,4 @@ def environment_state_dim(name: str) -> int:
     return int(task.environment_state(model, data).shape[0])
 
 
-__all__ = ["GYM_NAMES", "TASKS", "TASK_NAMES", "Task", "environment_state_dim", "make_task"]
+__all__ = ["TASKS", "Task", "environment_state_dim", "gym_name", "make_task", "register_task"]

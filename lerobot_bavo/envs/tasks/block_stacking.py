@@ -55,9 +55,9 @@ import mujoco
 import numpy as np
 
 from lerobot_bavo.envs.tasks.base import (
-    GripperGeoms,
     Task,
     contact_pairs,
+    free_body_speed,
     holds,
     set_free_body_pose,
     touching,
@@ -107,6 +107,13 @@ class BlockStacking(Task):
     max_episode_steps = 800
     stage_targets = ("base_block", "top_block", "stacking_region")
     stage_transitions = (2, 4)
+    target_geom_names = {
+        "base_block": ("base_block_geom",),
+        "top_block": ("top_block_geom",),
+        "stacking_region": ("stacking_region_geom",),
+    }
+    pose_bodies = {"base_block": "base_block", "top_block": "top_block"}
+    order = 2
 
     def build(self, spec: mujoco.MjSpec) -> None:
         base = spec.worldbody.add_body(name="base_block", pos=[0.15, 0.04, BASE_HALF[2]])
@@ -126,23 +133,15 @@ class BlockStacking(Task):
             group=C.GROUP_OBJECT, contype=0, conaffinity=0,
         )
 
-    def bind(self, model: mujoco.MjModel) -> None:
+    def bind_objects(self, model: mujoco.MjModel) -> None:
         self.base_body = model.body("base_block").id
         self.top_body = model.body("top_block").id
         self.base_joint = model.joint("base_block_joint").id
         self.top_joint = model.joint("top_block_joint").id
-        self.base_geoms = (model.geom("base_block_geom").id,)
-        self.top_geoms = (model.geom("top_block_geom").id,)
-        self.region_geoms = (model.geom("stacking_region_geom").id,)
-        self.table_geoms = (model.geom("table").id,)
+        self.base_geoms = self.target_geoms["base_block"]
+        self.top_geoms = self.target_geoms["top_block"]
+        self.region_geoms = self.target_geoms["stacking_region"]
         self.region_center = np.array([*REGION_CENTER, 0.0])
-        self.left = GripperGeoms(model, "left_")
-        self.right = GripperGeoms(model, "right_")
-        self.target_geoms = {
-            "base_block": self.base_geoms,
-            "top_block": self.top_geoms,
-            "stacking_region": self.region_geoms,
-        }
 
     def initialize_episode(self, model, data, rng: np.random.Generator) -> None:
         base_xy = rng.uniform([BASE_X[0], BASE_Y[0]], [BASE_X[1], BASE_Y[1]])
@@ -153,10 +152,6 @@ class BlockStacking(Task):
         set_free_body_pose(model, data, self.top_joint, [*top_xy, TOP_HALF[2]], top_yaw)
 
     # ------------------------------------------------------------------ predicates
-    def _speeds(self, model, data, joint_id: int) -> tuple[float, float]:
-        dof = model.jnt_dofadr[joint_id]
-        return float(np.linalg.norm(data.qvel[dof:dof + 3])), float(np.linalg.norm(data.qvel[dof + 3:dof + 6]))
-
     def evaluate(self, model, data) -> dict[str, bool]:
         pairs = contact_pairs(data)
         base_pos, base_rot = data.xpos[self.base_body], data.xmat[self.base_body].reshape(3, 3)
@@ -165,8 +160,8 @@ class BlockStacking(Task):
         top_low, _ = box_z_extent(top_pos, top_rot, TOP_HALF)
         base_upright = base_rot[2, 2] > UPRIGHT_COS
         top_upright = top_rot[2, 2] > UPRIGHT_COS
-        base_lin, base_ang = self._speeds(model, data, self.base_joint)
-        top_lin, top_ang = self._speeds(model, data, self.top_joint)
+        base_lin, base_ang = free_body_speed(model, data, self.base_joint)
+        top_lin, top_ang = free_body_speed(model, data, self.top_joint)
 
         fingers = self.left.all | self.right.all
         base_touched = touching(pairs, fingers, self.base_geoms)
@@ -197,12 +192,6 @@ class BlockStacking(Task):
             "m3": touching(pairs, self.left.all, self.top_geoms),
             "m4": bool(holds(pairs, self.left, self.top_geoms) and in_prestack and base_in_region),
             "m5": bool(stacked and base_placed and still and not base_touched and not top_touched),
-        }
-
-    def object_poses(self, model, data) -> dict[str, np.ndarray]:
-        return {
-            "base_block": np.concatenate([data.xpos[self.base_body], data.xquat[self.base_body]]),
-            "top_block": np.concatenate([data.xpos[self.top_body], data.xquat[self.top_body]]),
         }
 
     def view_points(self, model, data, depth: int) -> np.ndarray:

@@ -27,9 +27,9 @@ import mujoco
 import numpy as np
 
 from lerobot_bavo.envs.tasks.base import (
-    GripperGeoms,
     Task,
     contact_pairs,
+    free_body_speed,
     holds,
     set_free_body_pose,
     touching,
@@ -58,6 +58,9 @@ class CubeHandoff(Task):
     max_episode_steps = 800  # nominal expert ~345 steps; room for camera recovery under occlusion
     stage_targets = ("cube", "cube", "plate")
     stage_transitions = (2, 4)
+    target_geom_names = {"cube": ("cube_geom",), "plate": ("plate_geom",)}
+    pose_bodies = {"cube": "cube", "plate": "plate"}
+    order = 1
 
     def build(self, spec: mujoco.MjSpec) -> None:
         cube = spec.worldbody.add_body(name="cube", pos=[0.15, 0.05, CUBE_HALF])
@@ -71,16 +74,13 @@ class CubeHandoff(Task):
                        size=[PLATE_RADIUS, PLATE_HALF_HEIGHT, 0], mass=PLATE_MASS,
                        rgba=[0.2, 0.45, 0.85, 1], group=C.GROUP_OBJECT, friction=[1.0, 0.01, 0.001])
 
-    def bind(self, model: mujoco.MjModel) -> None:
+    def bind_objects(self, model: mujoco.MjModel) -> None:
         self.cube_body = model.body("cube").id
         self.plate_body = model.body("plate").id
         self.cube_joint = model.joint("cube_joint").id
         self.plate_joint = model.joint("plate_joint").id
-        self.cube_geoms = (model.geom("cube_geom").id,)
-        self.plate_geoms = (model.geom("plate_geom").id,)
-        self.left = GripperGeoms(model, "left_")
-        self.right = GripperGeoms(model, "right_")
-        self.target_geoms = {"cube": self.cube_geoms, "plate": self.plate_geoms}
+        self.cube_geoms = self.target_geoms["cube"]
+        self.plate_geoms = self.target_geoms["plate"]
 
     def initialize_episode(self, model, data, rng: np.random.Generator) -> None:
         cube_xy = rng.uniform([CUBE_X[0], CUBE_Y[0]], [CUBE_X[1], CUBE_Y[1]])
@@ -98,9 +98,8 @@ class CubeHandoff(Task):
         left_touch = touching(pairs, self.left.all, self.cube_geoms)
         right_hold = holds(pairs, self.right, self.cube_geoms)
         left_hold = holds(pairs, self.left, self.cube_geoms)
-        off_table = not touching(pairs, (model.geom("table").id,), self.cube_geoms) and cube_bottom > 0.01
-        dof = model.jnt_dofadr[self.cube_joint]
-        speed = float(np.linalg.norm(data.qvel[dof:dof + 3]))
+        off_table = not touching(pairs, self.table_geoms, self.cube_geoms) and cube_bottom > 0.01
+        speed, _ = free_body_speed(model, data, self.cube_joint)
         plate_top = plate_pos[2] + PLATE_HALF_HEIGHT
         on_plate = (
             np.linalg.norm(cube_pos[:2] - plate_pos[:2]) < PLATE_RADIUS
@@ -113,12 +112,6 @@ class CubeHandoff(Task):
             "m3": bool(right_hold and left_hold and off_table),
             "m4": bool(left_hold and not right_touch and off_table),
             "m5": bool(on_plate and speed < REST_SPEED and not left_touch and not right_touch),
-        }
-
-    def object_poses(self, model, data) -> dict[str, np.ndarray]:
-        return {
-            "cube": np.concatenate([data.xpos[self.cube_body], data.xquat[self.cube_body]]),
-            "plate": np.concatenate([data.xpos[self.plate_body], data.xquat[self.plate_body]]),
         }
 
     def view_points(self, model, data, depth: int) -> np.ndarray:

@@ -44,9 +44,9 @@ import mujoco
 import numpy as np
 
 from lerobot_bavo.envs.tasks.base import (
-    GripperGeoms,
     Task,
     contact_pairs,
+    free_body_speed,
     set_free_body_pose,
     touching,
 )
@@ -118,6 +118,12 @@ class DrawerStowing(Task):
     max_episode_steps = 800
     stage_targets = ("drawer_front", "object", "drawer_front")
     stage_transitions = (2, 3)
+    target_geom_names = {
+        "drawer_front": ("drawer_panel", "drawer_handle", "drawer_handle_post_0", "drawer_handle_post_1"),
+        "object": ("block_geom",),
+    }
+    pose_bodies = {"block": "block", "drawer": "drawer", "cabinet": "cabinet"}
+    order = 3
 
     def build(self, spec: mujoco.MjSpec) -> None:
         world = spec.worldbody
@@ -154,7 +160,7 @@ class DrawerStowing(Task):
                        mass=BLOCK_MASS, rgba=[0.15, 0.65, 0.25, 1], group=C.GROUP_OBJECT,
                        friction=list(BLOCK_FRICTION), condim=4)
 
-    def bind(self, model: mujoco.MjModel) -> None:
+    def bind_objects(self, model: mujoco.MjModel) -> None:
         self.cabinet_body = model.body("cabinet").id
         self.cabinet_mocap = int(model.body_mocapid[self.cabinet_body])
         self.drawer_body = model.body("drawer").id
@@ -163,15 +169,12 @@ class DrawerStowing(Task):
         slide = model.joint("drawer_slide").id
         self.slide_qadr = int(model.jnt_qposadr[slide])
         self.slide_dof = int(model.jnt_dofadr[slide])
-        self.block_geoms = (model.geom("block_geom").id,)
+        self.block_geoms = self.target_geoms["object"]
         self.handle_geoms = tuple(
             model.geom(n).id for n in ("drawer_handle", "drawer_handle_post_0", "drawer_handle_post_1")
         )
         self.panel_geoms = (model.geom("drawer_panel").id,)
         self.floor_geoms = (model.geom("drawer_floor").id,)
-        self.left = GripperGeoms(model, "left_")
-        self.right = GripperGeoms(model, "right_")
-        self.target_geoms = {"drawer_front": self.panel_geoms + self.handle_geoms, "object": self.block_geoms}
 
     def initialize_episode(self, model, data, rng: np.random.Generator) -> None:
         cab_xy = rng.uniform([CABINET_X[0], CABINET_Y[0]], [CABINET_X[1], CABINET_Y[1]])
@@ -218,21 +221,13 @@ class DrawerStowing(Task):
         released = not left_touch and not right_touch
         inside = self.block_inside(data)
         on_floor = touching(pairs, self.floor_geoms, self.block_geoms)
-        dof = model.jnt_dofadr[self.block_joint]
-        speed = float(np.linalg.norm(data.qvel[dof:dof + 3]))
+        speed, _ = free_body_speed(model, data, self.block_joint)
         return {
             "m1": touching(pairs, self.right.all, self.handle_geoms),
             "m2": slide >= OPEN_SLIDE,
             "m3": left_touch,
             "m4": bool(inside and on_floor and released and speed < REST_SPEED),
             "m5": bool(slide <= CLOSED_SLIDE and inside and on_floor and released),
-        }
-
-    def object_poses(self, model, data) -> dict[str, np.ndarray]:
-        return {
-            "block": np.concatenate([data.xpos[self.block_body], data.xquat[self.block_body]]),
-            "drawer": np.concatenate([data.xpos[self.drawer_body], data.xquat[self.drawer_body]]),
-            "cabinet": np.concatenate([data.xpos[self.cabinet_body], data.xquat[self.cabinet_body]]),
         }
 
     def view_points(self, model, data, depth: int) -> np.ndarray:

@@ -62,9 +62,9 @@ import mujoco
 import numpy as np
 
 from lerobot_bavo.envs.tasks.base import (
-    GripperGeoms,
     Task,
     contact_pairs,
+    free_body_speed,
     set_free_body_pose,
     touching,
 )
@@ -144,6 +144,14 @@ class DustpanSweeping(Task):
     max_episode_steps = 800
     stage_targets = ("dustpan", "broom", "target_object")
     stage_transitions = (2, 3)
+    target_geom_names = {
+        "dustpan": ("dustpan_plate", "dustpan_ramp", "dustpan_wall_left", "dustpan_wall_right", "dustpan_wall_back",
+                    "dustpan_handle"),
+        "broom": ("broom_head", "broom_stock", "broom_handle"),
+        "target_object": ("target_object_geom",),
+    }
+    pose_bodies = {"dustpan": "dustpan", "broom": "broom", "target_object": "target_object"}
+    order = 5
 
     # ------------------------------------------------------------------ build
     def build(self, spec: mujoco.MjSpec) -> None:
@@ -198,27 +206,18 @@ class DustpanSweeping(Task):
                         priority=1, condim=4, contype=RAMP_PARTNER_BITS[0], conaffinity=RAMP_PARTNER_BITS[1])
 
     # ------------------------------------------------------------------ bind
-    def bind(self, model: mujoco.MjModel) -> None:
+    def bind_objects(self, model: mujoco.MjModel) -> None:
         self.pan_body = model.body("dustpan").id
         self.broom_body = model.body("broom").id
         self.target_body = model.body("target_object").id
         self.pan_joint = model.joint("dustpan_joint").id
         self.broom_joint = model.joint("broom_joint").id
         self.target_joint = model.joint("target_object_joint").id
-        self.pan_geoms = tuple(model.geom(n).id for n in (
-            "dustpan_plate", "dustpan_ramp", "dustpan_wall_left", "dustpan_wall_right", "dustpan_wall_back",
-            "dustpan_handle"))
+        self.pan_geoms = self.target_geoms["dustpan"]
         self.pan_handle_geoms = (model.geom("dustpan_handle").id,)
-        self.broom_geoms = tuple(model.geom(n).id for n in ("broom_head", "broom_stock", "broom_handle"))
+        self.broom_geoms = self.target_geoms["broom"]
         self.broom_head_geoms = (model.geom("broom_head").id, model.geom("broom_stock").id)
-        self.target_geoms_ids = (model.geom("target_object_geom").id,)
-        self.left = GripperGeoms(model, "left_")
-        self.right = GripperGeoms(model, "right_")
-        self.target_geoms = {
-            "dustpan": self.pan_geoms,
-            "broom": self.broom_geoms,
-            "target_object": self.target_geoms_ids,
-        }
+        self.object_geoms = self.target_geoms["target_object"]
 
     # ------------------------------------------------------------------ reset
     def initialize_episode(self, model, data, rng: np.random.Generator) -> None:
@@ -254,8 +253,7 @@ class DustpanSweeping(Task):
 
     def evaluate(self, model, data) -> dict[str, bool]:
         pairs = contact_pairs(data)
-        pan_dof = model.jnt_dofadr[self.pan_joint]
-        pan_speed = float(np.linalg.norm(data.qvel[pan_dof:pan_dof + 3]))
+        pan_speed, _ = free_body_speed(model, data, self.pan_joint)
         pan_flat = self.pan_tilt(data) < MAX_TILT and data.xpos[self.pan_body][2] < ON_TABLE_Z
         ahead, lateral = self.target_in_pan_frame(data)
         right_on_broom = touching(pairs, self.right.all, self.broom_geoms)
@@ -269,17 +267,11 @@ class DustpanSweeping(Task):
             "m1": touching(pairs, self.left.all, self.pan_handle_geoms),
             "m2": bool(pan_flat and pan_speed < STILL_SPEED and in_corridor),
             "m3": right_on_broom,
-            "m4": right_on_broom and touching(pairs, self.broom_head_geoms, self.target_geoms_ids),
+            "m4": right_on_broom and touching(pairs, self.broom_head_geoms, self.object_geoms),
             "m5": bool(in_pan and pan_flat),
         }
 
     # ------------------------------------------------------------------ privileged state
-    def object_poses(self, model, data) -> dict[str, np.ndarray]:
-        return {
-            name: np.concatenate([data.xpos[b], data.xquat[b]])
-            for name, b in (("dustpan", self.pan_body), ("broom", self.broom_body), ("target_object", self.target_body))
-        }
-
     def view_points(self, model, data, depth: int) -> np.ndarray:
         head = data.xpos[self.broom_body]
         return np.stack([data.xpos[self.pan_body], head, data.xpos[self.target_body]])

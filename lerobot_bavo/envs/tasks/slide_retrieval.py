@@ -54,7 +54,6 @@ import mujoco
 import numpy as np
 
 from lerobot_bavo.envs.tasks.base import (
-    GripperGeoms,
     Task,
     contact_pairs,
     holds,
@@ -107,6 +106,13 @@ class SlideRetrieval(Task):
     max_episode_steps = 800
     stage_targets = ("support_platform", "blade", "handle")
     stage_transitions = (1, 2)
+    target_geom_names = {
+        "support_platform": ("platform_floor", "platform_side_a", "platform_side_b"),
+        "blade": ("blade_geom",),
+        "handle": ("handle_geom",),
+    }
+    pose_bodies = {"spatula": "spatula", "platform": "platform"}
+    order = 4
 
     def build(self, spec: mujoco.MjSpec) -> None:
         hx, hy, hz = PLATFORM_HALF
@@ -133,7 +139,7 @@ class SlideRetrieval(Task):
                          pos=list(HANDLE_OFFSET), mass=HANDLE_MASS, rgba=[0.75, 0.32, 0.1, 1],
                          group=C.GROUP_OBJECT, friction=sfriction, condim=4)
 
-    def bind(self, model: mujoco.MjModel) -> None:
+    def bind_objects(self, model: mujoco.MjModel) -> None:
         self.platform_body = model.body("platform").id
         self.platform_mocap = int(model.body_mocapid[self.platform_body])
         self.spatula_body = model.body("spatula").id
@@ -141,14 +147,7 @@ class SlideRetrieval(Task):
         self.blade_geom = model.geom("blade_geom").id
         self.handle_geom = model.geom("handle_geom").id
         self.spatula_geoms = (self.blade_geom, self.handle_geom)
-        self.platform_geoms = tuple(model.geom(n).id for n in ("platform_floor", "platform_side_a", "platform_side_b"))
-        self.left = GripperGeoms(model, "left_")
-        self.right = GripperGeoms(model, "right_")
-        self.target_geoms = {
-            "support_platform": self.platform_geoms,
-            "blade": (self.blade_geom,),
-            "handle": (self.handle_geom,),
-        }
+        self.platform_geoms = self.target_geoms["support_platform"]
 
     def initialize_episode(self, model, data, rng: np.random.Generator) -> None:
         xy = rng.uniform([PLATFORM_X[0], PLATFORM_Y[0]], [PLATFORM_X[1], PLATFORM_Y[1]])
@@ -226,12 +225,6 @@ class SlideRetrieval(Task):
             "m3": bool(exposed and not right_any and self.right_clearance(model, data) >= RELEASE_CLEARANCE),
             "m4": self._left_touches_exposed_handle(data),
             "m5": bool(left_hold and lifted and not right_any),
-        }
-
-    def object_poses(self, model, data) -> dict[str, np.ndarray]:
-        return {
-            "spatula": np.concatenate([data.xpos[self.spatula_body], data.xquat[self.spatula_body]]),
-            "platform": np.concatenate([data.xpos[self.platform_body], data.xquat[self.platform_body]]),
         }
 
     def view_points(self, model, data, depth: int) -> np.ndarray:
