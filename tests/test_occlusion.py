@@ -24,7 +24,8 @@ import pytest
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.conditions import OcclusionSchedule
 from lerobot_bavo.envs.occlusion import stage_index
-from lerobot_bavo.envs.visibility import CVGAccumulator, panel_hides
+from lerobot_bavo.envs.visibility import panel_hides
+from lerobot_bavo.eval.metrics import CVGAccumulator
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.sim.rendering import SceneRenderer
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_bavo.envs.visibility import (
+from lerobot_bavo.eval.metrics import (
     CVG_HORIZON,
     CVGAccumulator,
     CVGEventRecord,

@@ -18,7 +18,7 @@ Privileged information (milestone flags, object poses, camera pose) only goes in
 Conditions (`envs/conditions.py`): "clean" has no occluder; "stage" and "random" place the benchmark
 occluder at reset and at the Stage transitions / Random-time triggers (`envs/occlusion.py`); `info["occlusion"]`
 reports the current event and the target's per-step visibility, and under "random"
-`info["cvg"]` at episode end holds the events' CVG (`envs/visibility.py`). The visibility
+`info["cvg"]` at episode end holds the events' CVG (`eval/metrics.py`). The visibility
 renders use their own GL context and never touch observations, actions or dynamics.
 Seeding: every random draw (task layout, then the occlusion schedule) comes from
 `self.np_random`, seeded by `reset(seed=...)`.
@@ -46,7 +46,8 @@ from lerobot_bavo.envs.occlusion import (
     stage_index,
 )
 from lerobot_bavo.envs.tasks import Task, make_task
-from lerobot_bavo.envs.visibility import CVGAccumulator, TargetVisibility
+from lerobot_bavo.envs.visibility import TargetVisibility
+from lerobot_bavo.eval.metrics import NUM_MILESTONES, CVGAccumulator
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.kinematics import make_arm_kinematics
 from lerobot_bavo.sim.rendering import SceneRenderer
@@ -230,7 +231,7 @@ class BavoEnv(gym.Env):
         if terminated or truncated:
             self._ended = True
             self._episode_summary = self._cvg.close_episode()
-        return self._observation(), depth / 5.0, terminated, truncated, self._info()
+        return self._observation(), depth / NUM_MILESTONES, terminated, truncated, self._info()
 
     def render(self):
         """Third-person view (left) beside the active-camera view (right), HWC uint8; None when the env

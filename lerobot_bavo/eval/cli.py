@@ -78,7 +78,7 @@ def _run_job(job: dict) -> dict:
 
 def summarize_cell(records: list[dict]) -> dict:
     """SR, TPS, CVG (pp) and Joint of one (task, condition) cell (paper Sec. 3.3, App. A)."""
-    from lerobot_bavo.envs.visibility import aggregate_cvg, joint_score, success_rate, task_progress_score
+    from lerobot_bavo.eval.metrics import aggregate_cvg, joint_score, success_rate, task_progress_score
 
     sr = success_rate([r["success"] for r in records])
     tps = task_progress_score([r["progress"] for r in records])

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-NUM_MILESTONES = 5
+from lerobot_bavo.eval.metrics import NUM_MILESTONES
 
 
 class GripperGeoms:
