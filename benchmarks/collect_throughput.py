@@ -63,7 +63,7 @@ def main() -> None:
 
     datasets.disable_progress_bars()
     import lerobot_bavo.datasets.collect as C
-    from lerobot_bavo.datasets.schema import DatasetSettings
+    from lerobot_bavo.features import ObservationSettings
 
     tmp = None
     root = args.root
@@ -84,7 +84,7 @@ def main() -> None:
     t0 = time.perf_counter()
     summary = C.collect(C.CollectConfig(task=args.task, condition=args.condition, episodes=args.episodes,
                                         repo_id="bench/bavo_throughput", root=root, workers=args.workers,
-                                        commit_every=args.commit_every, settings=DatasetSettings(), progress=False))
+                                        commit_every=args.commit_every, settings=ObservationSettings(), progress=False))
     wall = time.perf_counter() - t0
     load1 = os.getloadavg()
 

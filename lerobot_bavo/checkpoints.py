@@ -28,6 +28,8 @@ import json
 import math
 from pathlib import Path
 
+from lerobot_bavo.features import OBS_ENV_STATE, OBS_IMAGE, OBS_POINT_CLOUD, POINT_CHANNELS, POINT_FRAMES
+
 # Module prefixes whose processor step classes may be imported by dotted path.
 TRUSTED_CLASS_PREFIXES = ("lerobot.processor.", "lerobot_bavo.")
 PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
@@ -225,20 +227,20 @@ def env_settings(path: str | Path) -> dict:
         return shape
 
     out: dict = {}
-    if "observation.point_cloud" in inputs:
-        shape = shape_of("observation.point_cloud")
-        if math.prod(shape) % 6:
+    if OBS_POINT_CLOUD in inputs:
+        shape = shape_of(OBS_POINT_CLOUD)
+        if math.prod(shape) % POINT_CHANNELS:
             raise CheckpointMismatchError(f"{file}: observation.point_cloud shape {shape} is not N x 6 (xyz rgb)")
-        out["n_points"] = math.prod(shape) // 6
+        out["n_points"] = math.prod(shape) // POINT_CHANNELS
         frame = recorded_point_frame(path)
         if frame is not None:
             out["point_frame"] = frame
-    if "observation.images.active" in inputs:
-        shape = shape_of("observation.images.active")
+    if OBS_IMAGE in inputs:
+        shape = shape_of(OBS_IMAGE)
         if len(shape) != 3 or 3 not in (shape[0], shape[-1]):
             raise CheckpointMismatchError(f"{file}: observation.images.active shape {shape} is not CHW / HWC RGB")
         out["image_height"], out["image_width"] = (shape[1], shape[2]) if shape[0] == 3 else (shape[0], shape[1])
-    out["environment_state"] = "observation.environment_state" in inputs
+    out["environment_state"] = OBS_ENV_STATE in inputs
     return out
 
 
@@ -248,7 +250,7 @@ INPUTS_RECORD = "bavo_inputs.json"
 def write_inputs_record(path: str | Path, point_frame: str) -> Path:
     """Record beside a checkpoint's weights the point frame its training clouds were in, so that it loads
     with the right env settings on a machine without its training data (see `recorded_point_frame`)."""
-    if point_frame not in ("base", "camera"):
+    if point_frame not in POINT_FRAMES:
         raise ValueError(f"point_frame must be 'base' or 'camera', got {point_frame!r}")
     out = Path(path) / INPUTS_RECORD
     out.write_text(json.dumps({"point_frame": point_frame}, indent=2) + "\n")
@@ -273,7 +275,7 @@ def recorded_point_frame(path: str | Path) -> str | None:
         except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as exc:
             raise CheckpointMismatchError(f"{own} is not a valid inputs record ({exc!r}); expected "
                                           '{"point_frame": "base"} or {"point_frame": "camera"}') from exc
-        if frame not in ("base", "camera"):
+        if frame not in POINT_FRAMES:
             raise CheckpointMismatchError(f"{own}: point_frame must be 'base' or 'camera', got {frame!r}")
         return frame
     file = Path(path) / "train_config.json"
@@ -284,7 +286,7 @@ def recorded_point_frame(path: str | Path) -> str | None:
     except (json.JSONDecodeError, UnicodeDecodeError):
         return None
     env = train.get("env") if isinstance(train, dict) else None
-    if isinstance(env, dict) and env.get("type") == "bavo" and env.get("point_frame") in ("base", "camera"):
+    if isinstance(env, dict) and env.get("type") == "bavo" and env.get("point_frame") in POINT_FRAMES:
         return env["point_frame"]
     dataset = train.get("dataset") if isinstance(train, dict) else None
     if not isinstance(dataset, dict):
@@ -309,7 +311,7 @@ def recorded_point_frame(path: str | Path) -> str | None:
             frame = json.loads(record.read_text())["settings"]["point_frame"]
         except (OSError, ValueError, KeyError, TypeError):
             continue
-        if frame in ("base", "camera"):
+        if frame in POINT_FRAMES:
             return frame
     return None
 

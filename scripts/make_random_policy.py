@@ -95,17 +95,18 @@ def make_random_policy(
     from lerobot.policies.factory import get_policy_class
     from lerobot.utils.constants import OBS_STATE
 
-    from lerobot_bavo.envs.configs import OBS_IMAGE_ACTIVE, BavoEnvConfig
+    from lerobot_bavo.envs.configs import BavoEnvConfig
+    from lerobot_bavo.features import OBS_IMAGE
 
     env_cfg = BavoEnvConfig(task=task, image_height=image_height, image_width=image_width, n_points=n_points)
     features = env_to_policy_features(env_cfg)
     cfg = small_policy_config(policy_type, device)
     cfg.output_features = {k: ft for k, ft in features.items() if k == "action"}
-    cfg.input_features = {k: features[k] for k in (OBS_STATE, OBS_IMAGE_ACTIVE)}
+    cfg.input_features = {k: features[k] for k in (OBS_STATE, OBS_IMAGE)}
 
     torch.manual_seed(seed)
     policy = get_policy_class(cfg.type)(cfg)
-    stats = synthetic_stats(OBS_IMAGE_ACTIVE, action_std_fraction)
+    stats = synthetic_stats(OBS_IMAGE, action_std_fraction)
     preprocessor, postprocessor = make_pre_post_processors(cfg, dataset_stats=stats)
 
     output_dir.mkdir(parents=True, exist_ok=True)

@@ -76,13 +76,15 @@ Reproduce: `bavo-eval --policy checkpoints/afar_cube_handoff --tasks cube_handof
 
 
 def main() -> None:
+    from lerobot_bavo.features import POINT_FRAMES
+
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--run", type=Path, required=True, help="lerobot-train --output_dir")
     p.add_argument("--step", default="last", help="checkpoint step folder (e.g. 006000) or last")
     p.add_argument("--eval", type=Path, required=True, help="bavo-eval results.json of this checkpoint")
     p.add_argument("--output", type=Path, default=Path("checkpoints/afar_cube_handoff"))
     p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
-    p.add_argument("--point-frame", choices=("base", "camera"), default=None,
+    p.add_argument("--point-frame", choices=POINT_FRAMES, default=None,
                    help="frame of the training clouds; default: read from the training dataset's bavo-collect record")
     args = p.parse_args()
     src = args.run / "checkpoints" / args.step / "pretrained_model"

@@ -18,8 +18,9 @@ import torch
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, CollectionError, Collector, collect
 from lerobot_bavo.datasets.hub import check_files, load_bavo_dataset, read_sidecar
+from lerobot_bavo.features import flatten_points
 
-SETTINGS = S.DatasetSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 STEPS = 30
 REPO = "tester/bavo_tiny"
 
@@ -57,7 +58,7 @@ def test_schema_flat_layouts_and_reshape_helpers():
     pc = S.unflatten_point_cloud(x, 32)
     assert pc.shape == (2, 5, 32, 6) and pc[1, 2, 3, 4] == x[1, 2, 3 * 6 + 4]
     assert S.unflatten_point_cloud(pc, 32) is pc  # already (N, 6): unchanged (env observations)
-    np.testing.assert_array_equal(S.flatten_points(pc), x)
+    np.testing.assert_array_equal(flatten_points(pc), x)
     import torch
 
     t = torch.from_numpy(x)
@@ -237,7 +238,7 @@ def test_corrupted_or_mismatched_datasets_give_clear_errors(dataset_root, tmp_pa
     # Continuing a collection with other settings is refused.
     other = _copy(dataset_root, tmp_path, "settings")
     with pytest.raises(CollectionError, match="other settings .*n_points"):
-        collect(_config(other, episodes=3, settings=S.DatasetSettings(48, 64, 16)))
+        collect(_config(other, episodes=3, settings=S.ObservationSettings(48, 64, 16)))
     with pytest.raises(CollectionError, match="not a LeRobot dataset"):
         (tmp_path / "junk").mkdir()
         (tmp_path / "junk" / "file.txt").write_text("x")

@@ -128,7 +128,7 @@ def hub(tmp_path, monkeypatch):
 def test_push_to_hub_and_load_back_by_repo_id(hub, tmp_path):
     root = tmp_path / "local" / "bavo_hub"
     collect(CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id=REPO, root=root, workers=0,
-                          settings=S.DatasetSettings(48, 64, 32), episode_length=20, keep_failures=True,
+                          settings=S.ObservationSettings(48, 64, 32), episode_length=20, keep_failures=True,
                           progress=False))
     (root / ".bavo_staging").mkdir()
     (root / ".bavo_staging" / "leftover.npz").write_bytes(b"x")  # must not be uploaded

@@ -11,7 +11,7 @@ import torch
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 
-SETTINGS = S.DatasetSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 STEPS = 30
 REPO = "tester/bavo_fast"
 FPS = 25

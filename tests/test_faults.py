@@ -404,7 +404,7 @@ def test_locks_hold_across_symlinked_spellings_and_for_bavo_eval(tmp_path):
     link = tmp_path / "link_to_x"
     link.symlink_to(real)
     cfg = dict(task="cube_handoff", condition="stage", episodes=1, repo_id="t/x", workers=0,
-               settings=S.DatasetSettings(32, 32, n_points=8), progress=False)
+               settings=S.ObservationSettings(32, 32, n_points=8), progress=False)
     held = Collector(CollectConfig(root=real, **cfg))._lock()
     try:
         with pytest.raises(CollectionError, match="another bavo-collect is writing"):
@@ -509,7 +509,7 @@ def test_bavo_collect_names_the_broken_metadata_file_of_the_dataset_it_continues
     args = ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "t/x", "--root", str(root), "--workers", "0",
             "--image-height", "32", "--image-width", "32", "--n-points", "8", "--no-progress"]
     Collector(CollectConfig(task="cube_handoff", condition="stage", episodes=1, repo_id="t/x", root=root, workers=0,
-                            settings=S.DatasetSettings(32, 32, n_points=8), progress=False))._open()  # empty dataset
+                            settings=S.ObservationSettings(32, 32, n_points=8), progress=False))._open()  # empty dataset
     good = {name: (root / name).read_text() for name in ("meta/info.json", str(SIDECAR))}
     for name, text, message in (
             ("meta/stats.json", "{not json", "stats.json: not valid JSON"),

@@ -405,8 +405,21 @@ def test_inference_modulation_cache_is_exact_and_invalidated():
             policy.config.num_inference_steps = steps
             for _ in range(2):  # second call hits the cache
                 torch.testing.assert_close(policy.generate_actions(batch, noise=noise), reference(steps))
-        with torch.no_grad():  # an in-place weight change (as an EMA update) must invalidate the cache
+        with torch.no_grad():  # an in-place weight change is explicit: the changer invalidates the cache
             model.dit.blocks[0].adaln[-1].bias.add_(0.3)
+        assert not torch.allclose(policy.generate_actions(batch, noise=noise), reference(1))  # stale until told
+        policy.invalidate_modulation_cache()
+        torch.testing.assert_close(policy.generate_actions(batch, noise=noise), reference(1))
+        # the policy's own weight changes invalidate it: EMA updates and loading weights
+        policy.generate_actions(batch, noise=noise)
+        with torch.no_grad():
+            policy.model.dit.blocks[0].adaln[-1].bias.add_(0.5)
+        policy.update()
+        torch.testing.assert_close(policy.generate_actions(batch, noise=noise), reference(1))
+        state = {k: v.clone() for k, v in model.state_dict().items()}
+        state["dit.blocks.0.adaln.1.bias"] += 0.2
+        policy.generate_actions(batch, noise=noise)
+        model.load_state_dict(state)
         torch.testing.assert_close(policy.generate_actions(batch, noise=noise), reference(1))
 
 
@@ -490,7 +503,7 @@ def test_bavo_flat_dataset_layout_and_env_layout(name):
 
     from lerobot_bavo.datasets import schema
 
-    ds_features = schema.build_features(schema.DatasetSettings(32, 32, n_points=N_POINTS), use_videos=True)
+    ds_features = schema.build_features(schema.ObservationSettings(32, 32, n_points=N_POINTS), use_videos=True)
     assert tuple(ds_features[PC]["shape"]) == (N_POINTS * 6,)
     g = torch.Generator().manual_seed(0)
     cloud = torch.rand(500, N_POINTS, 6, generator=g) * torch.tensor([1.0, 0.8, 0.6, 1, 1, 1])

@@ -171,9 +171,9 @@ def test_query_helpers():
 def test_teacher_targets_on_a_recorded_rollout():
     """Real expert rollout (short): z0 is the camera-frame point cloud; valid marks t + 15 <= T - 1."""
     from lerobot_bavo.datasets.recording import EpisodeRecorder
-    from lerobot_bavo.datasets.schema import DatasetSettings
+    from lerobot_bavo.features import ObservationSettings
 
-    rec = EpisodeRecorder("cube_handoff", "stage", DatasetSettings(48, 64, 32), episode_length=24)
+    rec = EpisodeRecorder("cube_handoff", "stage", ObservationSettings(48, 64, 32), episode_length=24)
     try:
         record = rec.record(seed=5)
     finally:

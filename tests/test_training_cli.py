@@ -16,7 +16,7 @@ from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 from lerobot_bavo.datasets.views import make_view
 
-SETTINGS = S.DatasetSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 
 
 def _cli(name: str, module: str) -> list[str]:

@@ -1,7 +1,8 @@
 """BAVO-Bench demonstration datasets (LeRobot v3.0): schema, collection (`bavo-collect`), loading, Hub.
 
 - `schema`: the one feature schema (flat array layouts) and the reshaping helpers
-  (`unflatten_point_cloud`, ...), used by the policies too.
+  (`unflatten_point_cloud`, ...), used by the policies too; its keys and `ObservationSettings`
+  come from `lerobot_bavo.features`.
 - `recording`: one scripted-expert episode with the privileged state the teacher needs.
 - `collect`: the `bavo-collect` CLI (parallel workers, resume, dataset card, push).
 - `hub`: `load_bavo_dataset` (schema + file checks), `push_dataset`, point-cloud statistics.
@@ -10,7 +11,6 @@
 
 from lerobot_bavo.datasets.hub import load_bavo_dataset, push_dataset, retile_point_cloud_stats
 from lerobot_bavo.datasets.schema import (
-    DatasetSettings,
     build_features,
     check_features,
     unflatten_camera_pose,
@@ -20,7 +20,6 @@ from lerobot_bavo.datasets.schema import (
 )
 
 __all__ = [
-    "DatasetSettings",
     "build_features",
     "check_features",
     "load_bavo_dataset",

@@ -44,6 +44,7 @@ import numpy as np
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.hub import SIDECAR
+from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
 
 logger = logging.getLogger("bavo-collect")
 
@@ -84,7 +85,7 @@ class CollectConfig:
     workers: int = 2
     seed: int = 0
     commit_every: int = 10
-    settings: S.DatasetSettings = field(default_factory=S.DatasetSettings)
+    settings: ObservationSettings = field(default_factory=ObservationSettings)
     episode_length: int | None = None
     keep_failures: bool = False
     use_videos: bool = True
@@ -156,7 +157,7 @@ def run_job(job: dict) -> dict:
     from lerobot_bavo.datasets.recording import EpisodeRecorder, episode_frames
     from lerobot_bavo.teacher.simulator import teacher_targets
 
-    settings = S.DatasetSettings(**job["settings"])
+    settings = ObservationSettings(**job["settings"])
     key = (job["task"], job["condition"], settings, job["episode_length"])
     if _RECORDER_KEY != key:
         if _RECORDER is not None:
@@ -685,7 +686,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-height", type=int, default=240)
     p.add_argument("--image-width", type=int, default=320)
     p.add_argument("--n-points", type=int, default=256)
-    p.add_argument("--point-frame", default="base", choices=("base", "camera"))
+    p.add_argument("--point-frame", default="base", choices=POINT_FRAMES)
     p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")
     p.add_argument("--keep-failures", action="store_true", help="keep unsuccessful episodes (debugging only)")
     p.add_argument("--push-to-hub", action="store_true", help="upload when done (needs `huggingface-cli login`)")
@@ -721,7 +722,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = CollectConfig(
             task=args.task, condition=args.condition, episodes=args.episodes, repo_id=args.repo_id, root=args.root,
             workers=args.workers, seed=args.seed, commit_every=args.commit_every,
-            settings=S.DatasetSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
+            settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
             episode_length=args.episode_length, keep_failures=args.keep_failures, push_to_hub=args.push_to_hub,
             private=True if args.private else None, progress=not args.no_progress,
             command=f"bavo-collect {argv_text}",

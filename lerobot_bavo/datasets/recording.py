@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.features import ObservationSettings, flatten_points
 from lerobot_bavo.envs.occlusion import stage_index
 from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
 from lerobot_bavo.sim import constants as C
@@ -71,11 +72,11 @@ class EpisodeRecorder:
 
     Args:
         task, condition: the benchmark task and visibility condition.
-        settings: observation settings (`schema.DatasetSettings`).
+        settings: observation settings (`lerobot_bavo.features.ObservationSettings`).
         episode_length: control-step limit (None: the task's own); truncated episodes fail.
     """
 
-    def __init__(self, task: str, condition: str, settings: S.DatasetSettings, episode_length: int | None = None):
+    def __init__(self, task: str, condition: str, settings: ObservationSettings, episode_length: int | None = None):
         from lerobot_bavo.envs.bavo_env import BavoEnv
         from lerobot_bavo.sim.rendering import SceneRenderer
 
@@ -186,8 +187,8 @@ def episode_frames(record: EpisodeRecord, targets: dict[str, np.ndarray]) -> dic
         S.OBS_STATE: record.state.astype(np.float32),
         S.ACTION: record.action.astype(np.float32),
         S.OBS_IMAGE: record.rgb,
-        S.OBS_POINT_CLOUD: record.point_cloud.reshape(T, n * S.POINT_CHANNELS).astype(np.float32),
-        S.OBS_POINT_PIXELS: record.point_pixels.reshape(T, n * S.PIXEL_CHANNELS).astype(np.float32),
+        S.OBS_POINT_CLOUD: flatten_points(record.point_cloud).astype(np.float32),
+        S.OBS_POINT_PIXELS: flatten_points(record.point_pixels).astype(np.float32),
         S.OBS_CAMERA_POSE: record.camera_pose.reshape(T, 16).astype(np.float32),
         S.OBS_ENV_STATE: record.environment_state.reshape(T, -1).astype(np.float32),
         S.TEACHER_Z0: targets["z0"].reshape(T, -1).astype(np.float32),

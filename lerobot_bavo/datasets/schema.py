@@ -2,8 +2,9 @@
 
 Every array feature is stored **flat** (1-D): LeRobot 0.6.1's `delete_episodes` / `merge_datasets`
 fail on 2-D features (FACTS.md, Sec. 4), so (N, C) arrays are stored row-major as (N * C,).
-`unflatten_points` / `unflatten_point_cloud` / ... give them back as (..., N, C); they accept
-both the flat layout (dataset, (..., N * C)) and the unflattened one (env, (..., N, C)).
+`unflatten_point_cloud` / ... (over `lerobot_bavo.features.unflatten_points`) give them back as
+(..., N, C); they accept both the flat layout (dataset, (..., N * C)) and the unflattened one (env,
+(..., N, C)). The keys and `ObservationSettings` (which fixes the schema) live in `lerobot_bavo.features`.
 
 Features (N = points per cloud, H x W = active image size; all per frame, 25 fps):
 
@@ -37,48 +38,46 @@ Features (N = points per cloud, H x W = active image size; all per frame, 25 fps
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from lerobot_bavo.features import (  # the keys and settings this schema is made of; defined there once
+    ACTION,
+    ANN_ACTIVE,
+    ANN_EVENT,
+    ANN_EVENT_START,
+    ANN_PROGRESS,
+    ANN_SEED,
+    ANN_TARGET,
+    ANN_VISIBILITY,
+    ANNOTATION_KEYS,
+    OBS_CAMERA_POSE,
+    OBS_ENV_STATE,
+    OBS_IMAGE,
+    OBS_POINT_CLOUD,
+    OBS_POINT_PIXELS,
+    OBS_STATE,
+    PIXEL_CHANNELS,
+    POINT_CHANNELS,
+    POSE_CHANNELS,
+    TEACHER_CHANNELS,
+    TEACHER_KEYS,
+    TEACHER_PREFIX,
+    TEACHER_VALID,
+    TEACHER_VISIBLE,
+    TEACHER_Z0,
+    TEACHER_ZF,
+    ObservationSettings,
+    unflatten_points,
+)
 from lerobot_bavo.sim import constants as C
 
 FPS = C.CONTROL_HZ  # 25
-
-# ------------------------------------------------------------------ keys
-OBS_STATE = "observation.state"
-ACTION = "action"
-OBS_IMAGE = "observation.images.active"
-OBS_POINT_CLOUD = "observation.point_cloud"
-OBS_POINT_PIXELS = "observation.point_pixels"
-OBS_CAMERA_POSE = "observation.camera_pose"
-OBS_ENV_STATE = "observation.environment_state"
-POSE_CHANNELS = 7  # xyz + wxyz quaternion per object in `observation.environment_state`
-TEACHER_PREFIX = "observation.teacher"
-TEACHER_Z0 = f"{TEACHER_PREFIX}.z0"
-TEACHER_ZF = f"{TEACHER_PREFIX}.zf"
-TEACHER_VISIBLE = f"{TEACHER_PREFIX}.visible"
-TEACHER_VALID = f"{TEACHER_PREFIX}.valid"
-ANNOTATION_PREFIX = "annotation"
-ANN_PROGRESS = f"{ANNOTATION_PREFIX}.progress"
-ANN_EVENT = f"{ANNOTATION_PREFIX}.occlusion_event"
-ANN_EVENT_START = f"{ANNOTATION_PREFIX}.event_start"
-ANN_ACTIVE = f"{ANNOTATION_PREFIX}.occlusion_active"
-ANN_TARGET = f"{ANNOTATION_PREFIX}.occlusion_target"
-ANN_VISIBILITY = f"{ANNOTATION_PREFIX}.visibility"
-ANN_SEED = f"{ANNOTATION_PREFIX}.episode_seed"
-
-POINT_CHANNELS = 6  # xyz + rgb
-PIXEL_CHANNELS = 2  # u, v
-TEACHER_CHANNELS = 3  # xyz in the camera frame of t_cam (SimulatorTeacher)
 
 # Teacher configuration (paper, Appendix B): 32-frame clips, anchor 16, future 31 (Delta t = 15).
 CLIP_LENGTH = 32
 ANCHOR_INDEX = 16
 N_FUTURE = 15
-
-TEACHER_KEYS = (TEACHER_Z0, TEACHER_ZF, TEACHER_VISIBLE, TEACHER_VALID)
-ANNOTATION_KEYS = (ANN_PROGRESS, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET, ANN_VISIBILITY, ANN_SEED)
 
 
 def joint_names() -> list[str]:
@@ -87,36 +86,7 @@ def joint_names() -> list[str]:
     return [f"left_{j}" for j in man] + [f"right_{j}" for j in man] + [f"cam_{j}" for j in C.CAMERA_ARM_JOINTS]
 
 
-@dataclass(frozen=True)
-class DatasetSettings:
-    """What fixes a dataset's schema: the env's observation settings.
-
-    Args:
-        image_height, image_width: active image size (pixels).
-        n_points: points per cloud N (= teacher queries N_q).
-        point_frame: "base" or "camera" (frame of the point-cloud xyz).
-        fovy: active camera vertical field of view (degrees), for the intrinsics.
-    """
-
-    image_height: int = 240
-    image_width: int = 320
-    n_points: int = 256
-    point_frame: str = "base"
-    fovy: float = C.ACTIVE_CAMERA_FOVY
-
-    def __post_init__(self):
-        if self.image_height < 16 or self.image_width < 16:
-            raise ValueError(f"image size must be >= 16 x 16, got {self.image_height} x {self.image_width}")
-        if self.n_points < 2:
-            raise ValueError(f"n_points must be >= 2 (relations need pairs), got {self.n_points}")
-        if self.point_frame not in ("base", "camera"):
-            raise ValueError(f"point_frame must be 'base' or 'camera', got {self.point_frame!r}")
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-def build_features(settings: DatasetSettings, use_videos: bool = True, env_state_dim: int = 0) -> dict[str, dict]:
+def build_features(settings: ObservationSettings, use_videos: bool = True, env_state_dim: int = 0) -> dict[str, dict]:
     """LeRobot feature dict (for `LeRobotDataset.create`) of a BAVO dataset with these settings.
 
     `env_state_dim` > 0 adds `observation.environment_state` (the task's object poses, 7 per object;
@@ -156,7 +126,7 @@ def build_features(settings: DatasetSettings, use_videos: bool = True, env_state
 
 def expected_shapes(n_points: int, image_hw: tuple[int, int] | None = None) -> dict[str, tuple[tuple[int, ...], str]]:
     """(shape, dtype) of every BAVO feature for `n_points` (the image entry only if `image_hw`)."""
-    settings = DatasetSettings(*(image_hw or (240, 320)), n_points=n_points)
+    settings = ObservationSettings(*(image_hw or (240, 320)), n_points=n_points)
     out = {k: (tuple(ft["shape"]), ft["dtype"]) for k, ft in build_features(settings).items()}
     if image_hw is None:
         out.pop(OBS_IMAGE)
@@ -235,21 +205,6 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
 
 
 # ------------------------------------------------------------------ reshaping
-def unflatten_points(x, n_points: int, channels: int):
-    """(..., N * C) or (..., N, C) -> (..., N, C); numpy arrays and torch tensors (a view when possible)."""
-    shape = tuple(x.shape)
-    if len(shape) >= 2 and shape[-2:] == (n_points, channels):
-        return x
-    if not shape or shape[-1] != n_points * channels:
-        raise ValueError(f"expected (..., {n_points * channels}) or (..., {n_points}, {channels}), got {shape}")
-    return x.reshape(*shape[:-1], n_points, channels)
-
-
-def flatten_points(x):
-    """(..., N, C) -> (..., N * C) (row-major)."""
-    return x.reshape(*tuple(x.shape)[:-2], x.shape[-2] * x.shape[-1])
-
-
 def unflatten_point_cloud(x, n_points: int):
     """`observation.point_cloud` -> (..., N, 6): xyz (m) + rgb in [0, 1]."""
     return unflatten_points(x, n_points, POINT_CHANNELS)

@@ -26,8 +26,6 @@ Seeding: every random draw (task layout, then the occlusion schedule) comes from
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import gymnasium as gym
 import mujoco
 import numpy as np
@@ -46,6 +44,15 @@ from lerobot_bavo.envs.occlusion import (
     stage_index,
 )
 from lerobot_bavo.envs.tasks import Task, make_task
+from lerobot_bavo.features import (
+    ENV_ENV_STATE_KEY,
+    ENV_POINT_CLOUD_KEY,
+    ENV_POINT_PIXELS_KEY,
+    ENV_STATE_KEY,
+    POINT_CHANNELS,
+    PIXEL_CHANNELS,
+    ObservationSettings,
+)
 from lerobot_bavo.envs.visibility import TargetVisibility
 from lerobot_bavo.eval.metrics import NUM_MILESTONES, CVGAccumulator
 from lerobot_bavo.sim import constants as C
@@ -53,23 +60,10 @@ from lerobot_bavo.sim.kinematics import make_arm_kinematics
 from lerobot_bavo.sim.rendering import SceneRenderer
 from lerobot_bavo.sim.scene import add_occluder, build_base_spec
 
-POINT_FRAMES = ("base", "camera")
 # Point-cloud crop box in the base frame (metres): the table's extent, from just above the table
 # top (so the bare table surface is not sampled) to 0.6 m above it.
 WORKSPACE_LOW = np.array([-0.61, -0.37, 0.004])
 WORKSPACE_HIGH = np.array([0.61, 0.37, 0.6])
-
-
-@dataclass(frozen=True)
-class ObservationSettings:
-    """What the env observes. Defaults follow DESIGN.md (240x320, 256 base-frame points)."""
-
-    image_height: int = 240
-    image_width: int = 320
-    n_points: int = 256
-    point_frame: str = "base"
-    fovy: float = C.ACTIVE_CAMERA_FOVY  # degrees, vertical
-    point_stride: int = DEFAULT_STRIDE  # pixel subsampling before farthest-point sampling
 
 
 class BavoEnv(gym.Env):
@@ -116,16 +110,12 @@ class BavoEnv(gym.Env):
         environment_state: bool = False,
     ):
         self.condition_rule = get_condition(condition)  # unknown names raise, listing the registered ones
-        if point_frame not in POINT_FRAMES:
-            raise ValueError(f"unknown point_frame {point_frame!r}; expected one of {POINT_FRAMES}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"unsupported render_mode {render_mode!r}; use 'rgb_array' or None")
-        if image_height < 16 or image_width < 16 or n_points < 1:
-            raise ValueError("image size must be >= 16 pixels and n_points >= 1")
 
         self.task = task if isinstance(task, Task) else make_task(task)
         self.condition = self.condition_rule.name
-        self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)
+        self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)  # checks them
         self.render_mode = render_mode
         self.render_height = render_height
         if episode_length is not None and episode_length < 1:
@@ -160,15 +150,16 @@ class BavoEnv(gym.Env):
         lo, hi = C.action_bounds()
         self.action_space = gym.spaces.Box(lo, hi, dtype=np.float32)
         self.observation_space = gym.spaces.Dict({
-            "agent_pos": gym.spaces.Box(-np.inf, np.inf, (C.ACTION_DIM,), np.float32),
+            ENV_STATE_KEY: gym.spaces.Box(-np.inf, np.inf, (C.ACTION_DIM,), np.float32),
             "pixels": gym.spaces.Dict({
                 "active": gym.spaces.Box(0, 255, (image_height, image_width, 3), np.uint8),
             }),
-            "point_cloud": gym.spaces.Box(-np.inf, np.inf, (n_points, 6), np.float32),
-            "point_pixels": gym.spaces.Box(-1, max(image_height, image_width), (n_points, 2), np.int32),
+            ENV_POINT_CLOUD_KEY: gym.spaces.Box(-np.inf, np.inf, (n_points, POINT_CHANNELS), np.float32),
+            ENV_POINT_PIXELS_KEY: gym.spaces.Box(-1, max(image_height, image_width), (n_points, PIXEL_CHANNELS),
+                                                 np.int32),
         })
         if self.environment_state:
-            self.observation_space["environment_state"] = gym.spaces.Box(
+            self.observation_space[ENV_ENV_STATE_KEY] = gym.spaces.Box(
                 -np.inf, np.inf, (self.environment_state_dim,), np.float32)
 
         self._renderer: SceneRenderer | None = None
@@ -380,16 +371,16 @@ class BavoEnv(gym.Env):
         rgb, depth = self._render_active()
         cloud, pixels = build_point_cloud(
             rgb, depth, self._K, self.camera_pose(), s.n_points, frame=s.point_frame,
-            workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH, stride=s.point_stride,
+            workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH, stride=DEFAULT_STRIDE,
         )
         obs = {
-            "agent_pos": self.joint_state().astype(np.float32),
+            ENV_STATE_KEY: self.joint_state().astype(np.float32),
             "pixels": {"active": rgb},
-            "point_cloud": cloud,
-            "point_pixels": pixels,
+            ENV_POINT_CLOUD_KEY: cloud,
+            ENV_POINT_PIXELS_KEY: pixels,
         }
         if self.environment_state:
-            obs["environment_state"] = self.task.environment_state(self.model, self.data)
+            obs[ENV_ENV_STATE_KEY] = self.task.environment_state(self.model, self.data)
         return obs
 
     def _info(self) -> dict:

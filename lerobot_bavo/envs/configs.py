@@ -13,27 +13,28 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE, OBS_STR
 
-from lerobot_bavo.envs.bavo_env import POINT_FRAMES
 from lerobot_bavo.envs.conditions import CONDITIONS
 from lerobot_bavo.envs.tasks import TASKS, environment_state_dim
+from lerobot_bavo.features import (
+    ACTION,
+    ENV_ENV_STATE_KEY,
+    ENV_IMAGE_KEY,
+    ENV_POINT_CLOUD_KEY,
+    ENV_POINT_PIXELS_KEY,
+    ENV_STATE_KEY,
+    OBS_ENV_STATE,
+    OBS_IMAGE,
+    OBS_POINT_CLOUD,
+    OBS_POINT_PIXELS,
+    OBS_STATE,
+    PIXEL_CHANNELS,
+    POINT_CHANNELS,
+    ObservationSettings,
+)
 from lerobot_bavo.sim.constants import ACTION_DIM, CONTROL_HZ
 
 from . import GYM_NAMESPACE, gym_id
-
-# Raw env observation keys ("pixels/<cam>" is LeRobot's convention for nested camera dicts).
-ENV_STATE_KEY = "agent_pos"
-ENV_IMAGE_KEY = "pixels/active"
-ENV_POINT_CLOUD_KEY = "point_cloud"
-ENV_POINT_PIXELS_KEY = "point_pixels"
-ENV_ENV_STATE_KEY = "environment_state"
-
-# The policy-side (and dataset-side) names of the same features.
-OBS_IMAGE_ACTIVE = f"{OBS_IMAGES}.active"  # "observation.images.active"
-OBS_POINT_CLOUD = f"{OBS_STR}.point_cloud"  # "observation.point_cloud"
-OBS_POINT_PIXELS = f"{OBS_STR}.point_pixels"  # "observation.point_pixels"
-OBS_ENV_STATE = f"{OBS_STR}.environment_state"  # "observation.environment_state"
 
 RENDER_MODES = ("rgb_array",)
 
@@ -85,7 +86,7 @@ class BavoEnvConfig(EnvConfig):
         default_factory=lambda: {
             ACTION: ACTION,
             ENV_STATE_KEY: OBS_STATE,
-            ENV_IMAGE_KEY: OBS_IMAGE_ACTIVE,
+            ENV_IMAGE_KEY: OBS_IMAGE,
             ENV_POINT_CLOUD_KEY: OBS_POINT_CLOUD,
             ENV_POINT_PIXELS_KEY: OBS_POINT_PIXELS,
         }
@@ -94,16 +95,12 @@ class BavoEnvConfig(EnvConfig):
     def __post_init__(self):
         TASKS.lookup(self.task)  # raises for unknown names, listing the registered ones
         CONDITIONS.lookup(self.condition)  # raises for unknown names, listing the registered ones
-        if self.point_frame not in POINT_FRAMES:
-            raise ValueError(f"unknown point_frame {self.point_frame!r}; expected one of {', '.join(POINT_FRAMES)}")
         if self.render_mode not in RENDER_MODES:
             raise ValueError(f"unsupported render_mode {self.render_mode!r}; expected one of {RENDER_MODES}")
         if self.fps != CONTROL_HZ:
             raise ValueError(f"fps={self.fps} but BAVO-Bench is controlled at {CONTROL_HZ} Hz")
-        if self.image_height < 16 or self.image_width < 16:
-            raise ValueError(f"image size must be >= 16 pixels, got {self.image_height}x{self.image_width}")
-        if self.n_points < 1:
-            raise ValueError(f"n_points must be >= 1, got {self.n_points}")
+        # Image size, n_points and point_frame: the same checks as the env's and the datasets'.
+        ObservationSettings(self.image_height, self.image_width, self.n_points, self.point_frame)
         if self.episode_length is not None:
             if self.episode_length < 1:
                 raise ValueError(f"episode_length must be >= 1 or None, got {self.episode_length}")
@@ -114,12 +111,19 @@ class BavoEnvConfig(EnvConfig):
         )
         # Non-image `observation.*` features are typed STATE, as LeRobot's dataset_to_policy_features
         # does for our datasets; policies that cannot use them (ACT, Diffusion) ignore them.
-        self.features[ENV_POINT_CLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 6))
-        self.features[ENV_POINT_PIXELS_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(self.n_points, 2))
+        self.features[ENV_POINT_CLOUD_KEY] = PolicyFeature(
+            type=FeatureType.STATE, shape=(self.n_points, POINT_CHANNELS))
+        self.features[ENV_POINT_PIXELS_KEY] = PolicyFeature(
+            type=FeatureType.STATE, shape=(self.n_points, PIXEL_CHANNELS))
         if self.environment_state:
             self.features_map[ENV_ENV_STATE_KEY] = OBS_ENV_STATE
             self.features[ENV_ENV_STATE_KEY] = PolicyFeature(
                 type=FeatureType.ENV, shape=(environment_state_dim(self.task),))
+
+    @property
+    def obs_settings(self) -> ObservationSettings:
+        """The observation settings these fields describe (raises for invalid ones)."""
+        return ObservationSettings(self.image_height, self.image_width, self.n_points, self.point_frame)
 
     @property
     def package_name(self) -> str:

@@ -27,12 +27,13 @@ import math
 import fpsample
 import numpy as np
 
+from lerobot_bavo.features import POINT_FRAMES
+
 # Rotation R_Cm<-C taking OpenCV camera axes (x right, y down, z forward) to MuJoCo camera
 # axes (x right, y up, z backward). It is its own inverse.
 MUJOCO_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
 MUJOCO_TO_OPENCV.setflags(write=False)
 
-SUPPORTED_FRAMES = ("base", "camera")
 
 # Default pixel step before FPS. At 240x320 -> 256 points, stride 3 keeps <= 80 x 107 = 8560
 # candidate pixels and the whole `build_point_cloud` call takes ~1 ms on one core (stride 2:
@@ -276,8 +277,8 @@ def build_point_cloud(
     Raises:
         ValueError: if `frame` is not "base" or "camera", or shapes/arguments are invalid.
     """
-    if frame not in SUPPORTED_FRAMES:
-        raise ValueError(f"frame must be one of {SUPPORTED_FRAMES}, got {frame!r}")
+    if frame not in POINT_FRAMES:
+        raise ValueError(f"frame must be one of {POINT_FRAMES}, got {frame!r}")
     if n_points < 1:
         raise ValueError(f"n_points must be >= 1, got {n_points}")
     if stride < 1:

@@ -200,6 +200,7 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     from lerobot_bavo.envs.conditions import CONDITIONS
     from lerobot_bavo.envs.tasks import TASKS
     from lerobot_bavo.eval.rollout import EXPERT_POLICIES
+    from lerobot_bavo.features import POINT_FRAMES
     from lerobot_bavo.runtime.process import LockedError, exclusive_lock
 
     for t in tasks:
@@ -211,7 +212,7 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
         raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
                          "nor a LeRobot checkpoint directory containing config.json")
-    if point_frame not in (None, "base", "camera"):
+    if point_frame is not None and point_frame not in POINT_FRAMES:
         raise SystemExit(f"bavo-eval: --point-frame must be base or camera, got {point_frame!r}")
     if output_dir.exists() and not output_dir.is_dir():
         raise SystemExit(f"bavo-eval: --output-dir {output_dir} exists and is not a folder")
@@ -316,6 +317,7 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
 
 def main(argv: list[str] | None = None) -> None:
     from lerobot_bavo.envs.tasks import TASKS
+    from lerobot_bavo.features import POINT_FRAMES
 
     parser = argparse.ArgumentParser(prog="bavo-eval", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -331,7 +333,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--trust-remote-code", action="store_true",
                         help="load processor steps and policy types that are neither LeRobot's audited ones nor "
                              "lerobot_bavo's (they run arbitrary code when loaded: only for checkpoints you trust)")
-    parser.add_argument("--point-frame", choices=("base", "camera"), default=None,
+    parser.add_argument("--point-frame", choices=POINT_FRAMES, default=None,
                         help="frame of the env's point clouds when nothing records the checkpoint's (default: the "
                              "frame its training dataset records, else base); a conflicting value is refused")
     args = parser.parse_args(argv)

@@ -4,11 +4,7 @@ from dataclasses import dataclass
 
 from lerobot.configs import PreTrainedConfig
 
-from ..maniflow.configuration_maniflow import OBS_TEACHER_PREFIX, ManiFlowConfig
-
-OBS_TEACHER_Z0 = f"{OBS_TEACHER_PREFIX}.z0"
-OBS_TEACHER_ZF = f"{OBS_TEACHER_PREFIX}.zf"
-OBS_TEACHER_VALID = f"{OBS_TEACHER_PREFIX}.valid"
+from ..maniflow.configuration_maniflow import ManiFlowConfig
 
 # A-FAR fields that follow the size preset. `paper`: Appendix B (WorldQueryFormer 128 wide, 2 blocks, 4 heads; FFN
 # width not given, 4x as usual; relations over all N_q = 256 points). `cpu`: chosen with benchmarks/policy_speed.py

@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
+from lerobot_bavo.features import TEACHER_VALID, TEACHER_Z0, TEACHER_ZF, unflatten_points
 from lerobot_bavo.teacher.relations import (
     relation_matrix,
     relational_losses,
@@ -23,7 +24,7 @@ from lerobot_bavo.teacher.relations import (
 )
 
 from ..maniflow.modeling_maniflow import CrossAttention, ManiFlowModel, ManiFlowPolicy, SelfAttention
-from .configuration_afar import OBS_TEACHER_VALID, OBS_TEACHER_Z0, OBS_TEACHER_ZF, AfarConfig
+from .configuration_afar import AfarConfig
 
 
 class WorldQueryBlock(nn.Module):
@@ -108,7 +109,7 @@ def _teacher_tokens(x: Tensor, batch_size: int, num_points: int, key: str) -> Te
     if x.ndim == 2:  # (B, N * d)
         if x.shape[1] % num_points:
             raise ValueError(f"'{key}' of shape {tuple(x.shape)} cannot be split into {num_points} points.")
-        x = x.reshape(batch_size, num_points, -1)
+        x = unflatten_points(x, num_points, x.shape[1] // num_points)
     if x.ndim != 3 or x.shape[0] != batch_size or x.shape[1] != num_points:
         raise ValueError(
             f"'{key}' must be (B, N_q, d_T) or (B, To, N_q, d_T) with N_q = {num_points} (the point count). "
@@ -145,14 +146,15 @@ class AfarPolicy(ManiFlowPolicy):
         """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
+        self.invalidate_modulation_cache()  # an optimiser step on these weights follows
         cfg: AfarConfig = self.config
         use_rel = cfg.uses_relational_loss
         if use_rel:
-            missing = [k for k in (OBS_TEACHER_Z0, OBS_TEACHER_ZF) if k not in batch]
+            missing = [k for k in (TEACHER_Z0, TEACHER_ZF) if k not in batch]
             if missing and self.training:
                 raise KeyError(
                     f"A-FAR training needs the teacher targets {missing} in the batch (dataset features "
-                    f"'{OBS_TEACHER_Z0}' and '{OBS_TEACHER_ZF}', shape (N_q, d_T)). Add them to the dataset, or "
+                    f"'{TEACHER_Z0}' and '{TEACHER_ZF}', shape (N_q, d_T)). Add them to the dataset, or "
                     "disable the relational losses (--policy.use_current_relation_loss=false "
                     "--policy.use_future_evolution_loss=false)."
                 )
@@ -177,17 +179,17 @@ class AfarPolicy(ManiFlowPolicy):
         cfg: AfarConfig = self.config
         h_cur = aux["h_cur"]  # (B, M, Dp): the first M of the N points (`points_per_step`)
         b, n = h_cur.shape[0], cfg.num_points
-        z0 = _teacher_tokens(batch[OBS_TEACHER_Z0], b, n, OBS_TEACHER_Z0)[:, : h_cur.shape[1]]
-        zf = _teacher_tokens(batch[OBS_TEACHER_ZF], b, n, OBS_TEACHER_ZF)[:, : h_cur.shape[1]]
-        for key, z in ((OBS_TEACHER_Z0, z0), (OBS_TEACHER_ZF, zf)):
+        z0 = _teacher_tokens(batch[TEACHER_Z0], b, n, TEACHER_Z0)[:, : h_cur.shape[1]]
+        zf = _teacher_tokens(batch[TEACHER_ZF], b, n, TEACHER_ZF)[:, : h_cur.shape[1]]
+        for key, z in ((TEACHER_Z0, z0), (TEACHER_ZF, zf)):
             if not bool(torch.isfinite(z).all()):
                 raise ValueError(f"'{key}' holds NaN or inf in this batch: the dataset's teacher cache is broken "
                                  "(recompute it with lerobot_bavo.teacher, or train without the relational losses)")
         n = h_cur.shape[1]
         zero = h_cur.new_zeros(())
         idx = None
-        if OBS_TEACHER_VALID in batch:
-            valid = batch[OBS_TEACHER_VALID].reshape(b, -1)[:, -1] > 0.5
+        if TEACHER_VALID in batch:
+            valid = batch[TEACHER_VALID].reshape(b, -1)[:, -1] > 0.5
             if not bool(valid.all()):
                 idx = valid.nonzero(as_tuple=True)[0]
                 if idx.numel() == 0:

@@ -8,13 +8,11 @@ from lerobot.optim import AdamWConfig
 from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-OBS_POINT_CLOUD = "observation.point_cloud"
-# Privileged-state alternative to the point cloud: K object poses (7 each: xyz + wxyz quaternion), one token per
-# object. Used by the first rung of the failure ladder (docs/results/ladder_cube_handoff.md).
-OBS_ENV_STATE = "observation.environment_state"
-POSE_CHANNELS = 7
-# Training-only targets ride along under this prefix (see `validate_features`).
-OBS_TEACHER_PREFIX = "observation.teacher"
+# OBS_ENV_STATE: the privileged-state alternative to the point cloud, K object poses (POSE_CHANNELS = 7 each: xyz +
+# wxyz quaternion), one token per object; used by the first rung of the failure ladder
+# (docs/results/ladder_cube_handoff.md). Training-only targets ride along under TEACHER_PREFIX (see
+# `validate_features`).
+from lerobot_bavo.features import OBS_ENV_STATE, OBS_POINT_CLOUD, POSE_CHANNELS, TEACHER_PREFIX
 
 # Size presets. `paper` is ManiFlow's DiT-X (768 wide, 12 layers, 8 heads; ~180 M parameters) with the
 # xyz+rgb PointNet (6->64->128->256->512->128). `cpu` keeps the PointNet and shrinks DiT-X to 192 wide x 3 layers
@@ -258,7 +256,7 @@ class ManiFlowConfig(PreTrainedConfig):
 
     def validate_features(self) -> None:
         if self.input_features:
-            for key in [k for k in self.input_features if k.startswith(OBS_TEACHER_PREFIX)]:
+            for key in [k for k in self.input_features if k.startswith(TEACHER_PREFIX)]:
                 del self.input_features[key]
         inputs = self.input_features or {}
         if OBS_POINT_CLOUD not in inputs and OBS_ENV_STATE not in inputs:

@@ -21,6 +21,8 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_bavo.features import unflatten_points
+
 from .configuration_maniflow import ManiFlowConfig
 
 # --------------------------------------------------------------------------------------------------------------
@@ -214,11 +216,6 @@ class DiTX(nn.Module):
         c = self.cond_proj(torch.cat([self.t_embed(t), self.dt_embed(dt)], dim=-1))
         return [split_modulation(blk.adaln(c)) for blk in self.blocks]
 
-    def conditioning_parameters(self) -> list[Tensor]:
-        """The parameters the modulations depend on (used to invalidate the inference cache)."""
-        mods = [self.t_embed, self.dt_embed, self.cond_proj, *(blk.adaln for blk in self.blocks)]
-        return [p for m in mods for p in m.parameters()]
-
     def forward(
         self,
         x: Tensor,
@@ -244,6 +241,10 @@ class DiTX(nn.Module):
 # --------------------------------------------------------------------------------------------------------------
 
 
+def _invalidate_after_load(module: ManiFlowModel, incompatible_keys) -> None:
+    module.invalidate_modulation_cache()
+
+
 class ManiFlowModel(nn.Module):
     """Point encoder + state MLP -> (B, To * N, Dp + Ds) context -> DiT-X."""
 
@@ -262,6 +263,9 @@ class ManiFlowModel(nn.Module):
             context_dim=config.point_feature_dim + config.state_feature_dim,
             context_len=config.n_obs_steps * config.num_tokens,
         )
+        # Inference-time AdaLN modulations by (num_steps, device, dtype); see `schedule_modulations`.
+        self._modulation_cache: dict[tuple, list] = {}
+        self.register_load_state_dict_post_hook(_invalidate_after_load)
 
     def encode_observations(self, point_cloud: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
         """point_cloud (B, To, N, C), state (B, To, S) -> point tokens (B, To, N, Dp), state feats (B, To, Ds)."""
@@ -287,15 +291,13 @@ class ManiFlowModel(nn.Module):
         """AdaLN modulations of the Euler schedule (t_i = i/N, dt = 1/N), batch 1, for every step.
 
         They depend only on the schedule and on the conditioning weights, so outside autograd they are cached
-        and reused across calls (at batch 1 their weights are ~40% of what a flow step reads). The cache key
-        holds the in-place version counters of those weights, so optimiser steps, EMA updates and
-        `load_state_dict` invalidate it.
+        per (num_steps, device, dtype) and reused across calls (at batch 1 their weights are ~40% of what a flow
+        step reads). Whoever changes the weights calls `invalidate_modulation_cache()`: `ManiFlowPolicy` does in
+        `forward` (a training step follows), `update` (EMA), `train()` and after `load_state_dict`.
         """
-        params = self.dit.conditioning_parameters()
-        key = (num_steps, device, dtype, tuple(p._version for p in params), tuple(p.data_ptr() for p in params))
-        cached = getattr(self, "_modulation_cache", None)
-        if cached is not None and cached[0] == key and not torch.is_grad_enabled():
-            return cached[1]
+        key = (num_steps, device, dtype)
+        if key in self._modulation_cache and not torch.is_grad_enabled():
+            return self._modulation_cache[key]
         step = 1.0 / num_steps
         dt = torch.full((1,), step, device=device, dtype=dtype)
         mods = [
@@ -304,8 +306,12 @@ class ManiFlowModel(nn.Module):
             for i in range(num_steps)
         ]
         if not torch.is_grad_enabled():
-            self._modulation_cache = (key, mods)
+            self._modulation_cache[key] = mods
         return mods
+
+    def invalidate_modulation_cache(self) -> None:
+        """Forget the cached AdaLN modulations (call after changing the conditioning weights in place)."""
+        self._modulation_cache.clear()
 
     def sample(self, context: Tensor, noise: Tensor, num_steps: int) -> Tensor:
         """Euler integration from noise (t = 0) to data (t = 1): x += (1/N) f(x, i/N, 1/N)."""
@@ -375,7 +381,14 @@ class ManiFlowPolicy(PreTrainedPolicy):
     def train(self, mode: bool = True):
         super().train(mode)
         self.ema_model.eval()  # the EMA copy never uses dropout
+        self.invalidate_modulation_cache()
         return self
+
+    def invalidate_modulation_cache(self) -> None:
+        """Forget both networks' cached inference modulations; call after changing weights in place outside
+        `forward` / `update` / `load_state_dict` (which call it)."""
+        self.model.invalidate_modulation_cache()
+        self.ema_model.invalidate_modulation_cache()
 
     def ema_decay(self, step: int) -> float:
         """clip(1 - (1 + k) ** -power, 0, max_decay) at update k (0-based), as ManiFlow / diffusers EMAModel."""
@@ -391,15 +404,16 @@ class ManiFlowPolicy(PreTrainedPolicy):
         for b_ema, b in zip(self.ema_model.buffers(), self.model.buffers(), strict=True):
             b_ema.copy_(b)
         self.ema_step += 1
+        self.invalidate_modulation_cache()
 
     # ---- Inputs ---------------------------------------------------------------------------------------------
 
     def _points(self, pc: Tensor) -> Tensor:
         """(..., N * C) flat (dataset layout) or (..., N, C) -> (..., M, C): the first M = `num_tokens` points
         (an exact M-point FPS subsample, clouds being FPS-ordered); object poses: (..., K, 7)."""
-        n, c = self.config.num_points, self.config.token_channels
-        if pc.shape[-1] == n * c and not (pc.ndim >= 2 and tuple(pc.shape[-2:]) == (n, c)):
-            pc = pc.reshape(*pc.shape[:-1], n, c)
+        c = self.config.token_channels
+        if not (pc.ndim >= 2 and pc.shape[-1] == c):  # flat: not yet (..., N, C) (nor the first M points of it)
+            pc = unflatten_points(pc, self.config.num_points, c)
         m = self.config.num_tokens
         return pc[..., :m, :] if m < pc.shape[-2] else pc
 
@@ -495,6 +509,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         """Consistency flow-matching loss L_FM + L_CT; returns (loss, logging dict of floats)."""
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
+        self.invalidate_modulation_cache()  # an optimiser step on these weights follows
         pc, state = self._observation_tensors(batch)
         context, _ = self.model.observation_context(pc, state, need_future=False)
         loss, info = self.flow_loss(context, batch)

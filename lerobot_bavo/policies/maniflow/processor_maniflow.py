@@ -31,7 +31,9 @@ from lerobot.processor import (
     make_policy_processor_pipelines,
 )
 
-from .configuration_maniflow import OBS_POINT_CLOUD, ManiFlowConfig
+from lerobot_bavo.features import OBS_POINT_CLOUD, unflatten_points
+
+from .configuration_maniflow import ManiFlowConfig
 
 
 def per_channel_point_stats(stats: dict[str, Any], n_points: int, channels: int) -> dict[str, torch.Tensor]:
@@ -61,13 +63,13 @@ def per_channel_point_stats(stats: dict[str, Any], n_points: int, channels: int)
             out[name] = v
             continue
         shape = v.shape
-        per_slot = v.reshape(n_points, channels).to(torch.float64)
+        per_slot = unflatten_points(v, n_points, channels).to(torch.float64)
         if name == "min":
             red = per_slot.min(0).values
         elif name == "max":
             red = per_slot.max(0).values
         elif name == "std" and "mean" in stats:
-            means = torch.as_tensor(stats["mean"]).reshape(n_points, channels).to(torch.float64)
+            means = unflatten_points(torch.as_tensor(stats["mean"]), n_points, channels).to(torch.float64)
             red = ((per_slot**2 + means**2).mean(0) - means.mean(0) ** 2).clamp_min(0).sqrt()
         else:
             red = per_slot.mean(0)
