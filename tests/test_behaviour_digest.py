@@ -125,7 +125,7 @@ def test_expert_rollout_digest(key):
             obs, reward, terminated, truncated, info = env.step(expert.act(obs, info))
             h.add([reward, terminated, truncated])
             done = terminated or truncated
-        h.add([r["event"] for r in expert.recoveries])
+        h.add([r.event for r in expert.recoveries])
     finally:
         env.close()
     _check(ROLLOUT_DIGESTS, key, h.hexdigest())

@@ -16,16 +16,16 @@ import pytest
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.experts import make_expert
+from lerobot_bavo.sim.constants import MANIPULATOR_JOINTS
 from lerobot_bavo.sim.rendering import SceneRenderer
 
 SMALL = dict(image_height=96, image_width=128, n_points=64, render_mode=None)
 
-MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 CAM_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_1", "wrist_2", "wrist_3")
 # 21-dim layout: left 6 + gripper, right 6 + gripper, camera arm 7.
 JOINT_NAMES = (
-    [f"left_{j}" for j in MANIP_JOINTS] + [None]
-    + [f"right_{j}" for j in MANIP_JOINTS] + [None]
+    [f"left_{j}" for j in MANIPULATOR_JOINTS] + [None]
+    + [f"right_{j}" for j in MANIPULATOR_JOINTS] + [None]
     + [f"cam_{j}" for j in CAM_JOINTS]
 )
 HOME = np.array(

@@ -18,7 +18,6 @@ from lerobot_bavo.sim.kinematics import ArmKinematics, make_arm_kinematics, rota
 from lerobot_bavo.sim.rendering import SceneRenderer
 from lerobot_bavo.sim.scene import build_base_spec
 
-MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 CAM_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_1", "wrist_2", "wrist_3")
 MANIP_HOME = np.array([0.0, -0.082, 1.06, 0.0, -0.953, 0.0])
 CAM_HOME = np.array([0.0, -0.6, 0.5, 0.0, 0.5, 0.0, 0.0])  # AV-ALOHA MIDDLE_POSE
@@ -119,7 +118,7 @@ def test_home_grippers_symmetric_about_x0(kins):
 def test_fk_matches_hand_chain_at_random_configurations(model, kins):
     g = np.random.default_rng(0)
     for side, mount in (("left", C.LEFT_MOUNT), ("right", C.RIGHT_MOUNT)):
-        lo, hi = _joint_limits(model, [f"{side}_{j}" for j in MANIP_JOINTS])
+        lo, hi = _joint_limits(model, [f"{side}_{j}" for j in C.MANIPULATOR_JOINTS])
         for _ in range(20):
             q = g.uniform(lo, hi)
             pos, rot = kins[side].fk(q)
@@ -178,7 +177,7 @@ def test_camera_arm_ik_round_trip(model, kins, spread):
 def test_manipulator_ik_round_trip_without_posture_weights(model):
     """The DLS solver itself recovers reachable poses near home (posture regularisation off)."""
     for side in ("left", "right"):
-        names = [f"{side}_{j}" for j in MANIP_JOINTS]
+        names = [f"{side}_{j}" for j in C.MANIPULATOR_JOINTS]
         kin = ArmKinematics(model, names, f"{side}_gripper_center", MANIP_HOME)
         lo, hi = _joint_limits(model, names)
         frac, errors = _round_trip_fraction(kin, MANIP_HOME, lo, hi, 30, 2, 0.5)
@@ -189,7 +188,7 @@ def test_manipulator_ik_round_trip_without_posture_weights(model):
 def test_manipulator_ik_round_trip(model, kins):
     """The arms' configured IK (as the experts use it) recovers reachable poses near home."""
     for side in ("left", "right"):
-        lo, hi = _joint_limits(model, [f"{side}_{j}" for j in MANIP_JOINTS])
+        lo, hi = _joint_limits(model, [f"{side}_{j}" for j in C.MANIPULATOR_JOINTS])
         frac, errors = _round_trip_fraction(kins[side], MANIP_HOME, lo, hi, 30, 2, 0.5)
         print(f"{side} manipulator IK round trip: {frac:.2f}")
         assert frac >= 0.9, (frac, np.median(errors, axis=0))
@@ -205,7 +204,7 @@ def test_manipulator_ik_small_perturbation_converges(kins):
 def test_ik_position_only_and_joint_limits(model, kins):
     # A target far out of reach: the solver stays within the joint limits and reports failure.
     res = kins["left"].ik([2.0, 0.0, 0.3])
-    lo, hi = _joint_limits(model, [f"left_{j}" for j in MANIP_JOINTS])
+    lo, hi = _joint_limits(model, [f"left_{j}" for j in C.MANIPULATOR_JOINTS])
     assert not res.converged
     assert np.all(res.qpos >= lo) and np.all(res.qpos <= hi)
     # Position-only target reached from home.
@@ -221,7 +220,7 @@ def test_ik_position_only_and_joint_limits(model, kins):
 def render_setup(model):
     data = mujoco.MjData(model)
     for side in ("left", "right"):
-        for j, v in zip(MANIP_JOINTS, MANIP_HOME):
+        for j, v in zip(C.MANIPULATOR_JOINTS, MANIP_HOME):
             data.qpos[model.jnt_qposadr[model.joint(f"{side}_{j}").id]] = v
     H, W = 121, 161  # odd sizes: the centre pixel (60, 80) lies exactly on the optical axis
     renderer = SceneRenderer(model, H, W)

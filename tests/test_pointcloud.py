@@ -18,16 +18,12 @@ from lerobot_bavo.envs.pointcloud import (
     transform_points,
     workspace_mask,
 )
+from lerobot_bavo.sim.transforms import rot_z
 
 
 def _rot_x(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rot_z(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -102,7 +98,7 @@ def test_camera_pose_from_mujoco_looking_along_y():
 
 def test_transform_and_invert_round_trip():
     T = np.eye(4)
-    T[:3, :3] = _rot_z(math.pi / 2)
+    T[:3, :3] = rot_z(math.pi / 2)
     T[:3, 3] = [1.0, 2.0, 3.0]
     # Hand value: Rz(90) maps x to y, so (1, 0, 0) -> (0, 1, 0) + (1, 2, 3).
     np.testing.assert_allclose(transform_points(T, np.array([[1.0, 0.0, 0.0]])), [[1.0, 3.0, 3.0]])
@@ -110,7 +106,7 @@ def test_transform_and_invert_round_trip():
     np.testing.assert_allclose(T_inv @ T, np.eye(4), atol=1e-12)
     np.testing.assert_allclose(T @ T_inv, np.eye(4), atol=1e-12)
     T2 = np.eye(4)
-    T2[:3, :3] = _rot_x(0.3) @ _rot_z(-1.1)
+    T2[:3, :3] = _rot_x(0.3) @ rot_z(-1.1)
     T2[:3, 3] = [-0.2, 0.5, 0.9]
     pts = np.random.default_rng(0).normal(size=(20, 3))
     np.testing.assert_allclose(transform_points(invert_transform(T2), transform_points(T2, pts)), pts)

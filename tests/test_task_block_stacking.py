@@ -27,8 +27,9 @@ from lerobot_bavo.envs.tasks.block_stacking import (
     BlockStacking,
 )
 from lerobot_bavo.experts import make_expert
-from lerobot_bavo.experts.block_stacking import topdown_rot
+from lerobot_bavo.experts.block_stacking import CLOSING
 from lerobot_bavo.sim import constants as C
+from lerobot_bavo.sim.transforms import topdown_rot, yaw_quat
 
 SMALL = dict(image_height=96, image_width=128, n_points=64, render_mode=None)
 REGION = np.array([*REGION_CENTER, 0.0])
@@ -55,7 +56,7 @@ def _set_block(env, name: str, pos, yaw: float = 0.0, vel=(0.0, 0.0, 0.0)) -> No
     j = m.joint(f"{name}_joint").id
     adr, dof = m.jnt_qposadr[j], m.jnt_dofadr[j]
     d.qpos[adr:adr + 3] = pos
-    d.qpos[adr + 3:adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+    d.qpos[adr + 3:adr + 7] = yaw_quat(yaw)
     d.qvel[dof:dof + 6] = 0.0
     d.qvel[dof:dof + 3] = vel
 
@@ -73,7 +74,7 @@ def _set_arm(env, side: str, q_arm, finger: float) -> None:
 
 def _grip_at(env, side: str, center, half_width: float, closed: bool = True) -> None:
     """Top-down gripper centred on `center`; pads pressed into (or clear of) a block's faces."""
-    ik = env.kinematics[side].ik(center, topdown_rot(side, 0.0), q_init=np.array(C.MANIPULATOR_HOME),
+    ik = env.kinematics[side].ik(center, topdown_rot(CLOSING[side], 0.0), q_init=np.array(C.MANIPULATOR_HOME),
                                  max_iters=300)
     assert ik.converged
     _set_arm(env, side, ik.qpos, half_width - SQUEEZE if closed else C.FINGER_CTRL_RANGE[1])

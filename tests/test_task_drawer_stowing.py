@@ -18,35 +18,28 @@ from lerobot_bavo.envs.tasks import make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.experts.drawer_stowing import DrawerStowingExpert
+from lerobot_bavo.sim.constants import MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
+from lerobot_bavo.sim.transforms import rot_from_axes, yaw_quat
 from _helpers import EditedScene, milestone_flags
 
-MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
 OPEN = 0.037  # finger slide (m), fully open
 BAR_GRIP = T.HANDLE_RADIUS - 0.0005  # pads 0.5 mm inside the bar's surface
 BLOCK_GRIP = T.BLOCK_HALF - 0.0005
 
 
-def _rot(x_axis, y_axis) -> np.ndarray:
-    x = np.asarray(x_axis, float) / np.linalg.norm(x_axis)
-    y = np.asarray(y_axis, float)
-    y = y - x * (x @ y)
-    y /= np.linalg.norm(y)
-    return np.column_stack([x, y, np.cross(x, y)])
-
-
-DOWN_CLOSE_Y = _rot([0, 0, -1], [0, -1, 0])  # pointing down, fingers close along world y
-DOWN_CLOSE_X = _rot([0, 0, -1], [1, 0, 0])  # pointing down, fingers close along world x
+DOWN_CLOSE_Y = rot_from_axes([0, 0, -1], [0, -1, 0])  # pointing down, fingers close along world y
+DOWN_CLOSE_X = rot_from_axes([0, 0, -1], [1, 0, 0])  # pointing down, fingers close along world x
 
 
 class Scene(EditedScene):
     """An env whose MjData is edited by hand."""
 
     def place_gripper(self, side: str, pos, rot, opening: float) -> None:
-        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIP_JOINTS], f"{side}_gripper_center", MANIP_HOME)
+        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center", MANIP_HOME)
         res = kin.ik(pos, rot, max_iters=300, pos_tol=1e-4, rot_tol=1e-3)
-        for j, v in zip(MANIP_JOINTS, res.qpos):
+        for j, v in zip(MANIPULATOR_JOINTS, res.qpos):
             self.d.qpos[self.qadr(f"{side}_{j}")] = v
             self.d.ctrl[self.m.actuator(f"{side}_{j}").id] = v  # hold the arm there when stepped
         for f in "ab":
@@ -67,7 +60,7 @@ class Scene(EditedScene):
         adr = self.m.jnt_qposadr[self.task.block_joint]
         dof = self.m.jnt_dofadr[self.task.block_joint]
         self.d.qpos[adr:adr + 3] = pos
-        self.d.qpos[adr + 3:adr + 7] = [np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
+        self.d.qpos[adr + 3:adr + 7] = yaw_quat(yaw)
         self.d.qvel[dof:dof + 6] = 0.0
         self.d.qvel[dof:dof + 3] = vel
 

@@ -24,7 +24,8 @@ from lerobot_bavo.envs.tasks.dustpan_sweeping import (
     TARGET_HALF,
     DustpanSweeping,
 )
-from lerobot_bavo.experts.dustpan_sweeping import DustpanSweepingExpert, topdown_rot
+from lerobot_bavo.experts.dustpan_sweeping import DustpanSweepingExpert
+from lerobot_bavo.sim.transforms import topdown_rot, yaw_quat
 
 SMALL = dict(image_height=48, image_width=64, n_points=16, render_mode=None)
 
@@ -39,10 +40,6 @@ def env():
 # --------------------------------------------------------------------------------------------
 # helpers
 # --------------------------------------------------------------------------------------------
-def quat_z(yaw: float) -> np.ndarray:
-    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-
-
 def quat_x(angle: float) -> np.ndarray:
     return np.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
 
@@ -83,7 +80,7 @@ def local_to_world(pos_xy, yaw, local) -> np.ndarray:
 def grasp_arm(env, side: str, point, yaw: float, finger: float) -> None:
     """Place `side`'s gripper centre at `point`, pointing down, fingers across heading `yaw`."""
     kin = env.kinematics[side]
-    res = kin.ik(point, topdown_rot(yaw, side))
+    res = kin.ik(point, topdown_rot([0.0, 1.0 if side == "left" else -1.0, 0.0], yaw))
     assert res.converged, (side, point)
     set_arm(env, side, res.qpos, finger)
 
@@ -133,7 +130,7 @@ def test_m2_valid_sweeping_configuration(env):
     assert not flags(env)["m2"]
 
     pan_xy = valid_layout(env)
-    set_body(env, "dustpan", [*pan_xy, 0.0], quat_z(math.pi))  # entrance facing away
+    set_body(env, "dustpan", [*pan_xy, 0.0], yaw_quat(math.pi))  # entrance facing away
     assert not flags(env)["m2"]
     set_body(env, "dustpan", [*pan_xy, 0.005], quat_x(math.radians(15)))  # tilted 15 deg
     assert not flags(env)["m2"]
@@ -144,7 +141,7 @@ def test_m2_valid_sweeping_configuration(env):
     # Turned by 20 deg about the cube so that the cube stays on the pan's axis: still valid.
     yaw = math.radians(20)
     d = 0.05 + ENTRANCE_X
-    set_body(env, "dustpan", [CUBE[0] - d * math.cos(yaw), CUBE[1] - d * math.sin(yaw), 0.0], quat_z(yaw))
+    set_body(env, "dustpan", [CUBE[0] - d * math.cos(yaw), CUBE[1] - d * math.sin(yaw), 0.0], yaw_quat(yaw))
     assert flags(env)["m2"]
 
 

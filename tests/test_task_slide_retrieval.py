@@ -17,10 +17,11 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.experts import make_expert
+from lerobot_bavo.sim.constants import MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
+from lerobot_bavo.sim.transforms import rot_from_axes
 from _helpers import EditedScene, milestone_flags
 
-MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
 PAD_DEPTH_HALF = 0.016  # finger pad half depth along the approach axis (robot.py)
 PAD_THICKNESS = 0.008
@@ -32,14 +33,6 @@ PLATFORM_Y = (-0.04, 0.10)
 PLATFORM_YAW = (-np.pi / 12, np.pi / 12)
 TIP_INSET = (0.01, 0.03)
 LATERAL = (-0.002, 0.002)
-
-
-def _rot(x_axis, y_axis) -> np.ndarray:
-    x = np.asarray(x_axis, float) / np.linalg.norm(x_axis)
-    y = np.asarray(y_axis, float)
-    y = y - x * (x @ y)
-    y /= np.linalg.norm(y)
-    return np.column_stack([x, y, np.cross(x, y)])
 
 
 class Scene(EditedScene):
@@ -67,14 +60,14 @@ class Scene(EditedScene):
     def topdown(self, side: str) -> np.ndarray:
         """Pointing down, fingers closing across the groove (the arm's natural wrist roll)."""
         sign = 1.0 if side == "left" else -1.0
-        return _rot([0, 0, -1], self.R @ [0, sign, 0])
+        return rot_from_axes([0, 0, -1], self.R @ [0, sign, 0])
 
     def place_gripper(self, side: str, pos, opening: float) -> None:
         rot = self.topdown(side)
-        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIP_JOINTS], f"{side}_gripper_center", MANIP_HOME)
+        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center", MANIP_HOME)
         pre = kin.ik(np.asarray(pos) + [0, 0, 0.1], rot, max_iters=300, pos_tol=1e-4, rot_tol=1e-3)
         res = kin.ik(pos, rot, q_init=pre.qpos, max_iters=300, pos_tol=5e-5, rot_tol=1e-3)
-        for j, v in zip(MANIP_JOINTS, res.qpos):
+        for j, v in zip(MANIPULATOR_JOINTS, res.qpos):
             self.d.qpos[self.qadr(f"{side}_{j}")] = v
             self.d.ctrl[self.m.actuator(f"{side}_{j}").id] = v
         for f in "ab":

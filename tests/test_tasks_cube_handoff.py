@@ -15,10 +15,11 @@ import pytest
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import TASKS, make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
+from lerobot_bavo.sim.constants import MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
+from lerobot_bavo.sim.transforms import rot_from_axes
 from _helpers import EditedScene, milestone_flags
 
-MANIP_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
 CUBE_HALF = 0.025
 PLATE_RADIUS = 0.07
@@ -27,35 +28,27 @@ GRIP = 0.0245  # finger slide (m): pads' inner faces 0.5 mm inside the 5 cm cube
 OPEN = 0.037
 
 
-def _rot(x_axis, y_axis) -> np.ndarray:
-    x = np.asarray(x_axis, float) / np.linalg.norm(x_axis)
-    y = np.asarray(y_axis, float)
-    y = y - x * (x @ y)
-    y /= np.linalg.norm(y)
-    return np.column_stack([x, y, np.cross(x, y)])
-
-
 # Pointing down, fingers closing along world -y (the right arm's natural top-down grasp; +y
 # would need wrist_rotate = pi, just outside its +-3.14158 limit).
-DOWN_CLOSE_Y = _rot([0, 0, -1], [0, -1, 0])
-DOWN_CLOSE_X = _rot([0, 0, -1], [1, 0, 0])  # pointing down, fingers close along world x
+DOWN_CLOSE_Y = rot_from_axes([0, 0, -1], [0, -1, 0])
+DOWN_CLOSE_X = rot_from_axes([0, 0, -1], [1, 0, 0])  # pointing down, fingers close along world x
 
 
 class Scene(EditedScene):
     """An env whose MjData is edited by hand."""
 
     def place_gripper(self, side: str, pos, rot, opening: float) -> np.ndarray:
-        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIP_JOINTS], f"{side}_gripper_center", MANIP_HOME)
+        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center", MANIP_HOME)
         # Approach from 10 cm above, then solve at the target from there (local DLS converges
         # reliably from a nearby start).
         pre = kin.ik(np.asarray(pos) + [0, 0, 0.1], rot, max_iters=300, pos_tol=1e-4, rot_tol=1e-3)
         res = kin.ik(pos, rot, q_init=pre.qpos, max_iters=300, pos_tol=5e-5, rot_tol=1e-3)
-        for j, v in zip(MANIP_JOINTS, res.qpos):
+        for j, v in zip(MANIPULATOR_JOINTS, res.qpos):
             self.d.qpos[self.qadr(f"{side}_{j}")] = v
         for f in "ab":
             self.d.qpos[self.qadr(f"{side}_finger_{f}")] = opening
         # Hold the arm there if the physics is stepped.
-        for j, v in zip(MANIP_JOINTS, res.qpos):
+        for j, v in zip(MANIPULATOR_JOINTS, res.qpos):
             self.d.ctrl[self.m.actuator(f"{side}_{j}").id] = v
         self.d.ctrl[self.m.actuator(f"{side}_gripper").id] = opening
         mujoco.mj_kinematics(self.m, self.d)

@@ -12,6 +12,7 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.rendering import SceneRenderer
+from lerobot_bavo.sim.transforms import yaw_quat
 from lerobot_bavo.teacher import (
     EpisodeClip,
     SimulatorTeacher,
@@ -24,10 +25,6 @@ from lerobot_bavo.teacher import (
 )
 
 H, W = 96, 128
-
-
-def _yaw_quat(yaw: float) -> np.ndarray:
-    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +54,7 @@ def scene_episode():
 
     snap()
     data.qpos[adr:adr + 3] += [0.04, -0.03, 0.06]
-    data.qpos[adr + 3:adr + 7] = _yaw_quat(0.6)
+    data.qpos[adr + 3:adr + 7] = yaw_quat(0.6)
     snap()
     for a, dq in zip(cam_qadr[:3], (0.25, 0.1, -0.1)):
         data.qpos[a] += dq

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.features import TEACHER_PREFIX
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 from lerobot_bavo.datasets.views import make_view
 
@@ -64,7 +65,7 @@ def test_afar_trains_checkpoints_resumes_and_evaluates(points_dataset, tmp_path)
     assert state["step"] == 4
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     cfg = json.loads((ckpt / "config.json").read_text())
-    assert cfg["type"] == "afar" and not any(k.startswith(S.TEACHER_PREFIX) for k in cfg["input_features"])
+    assert cfg["type"] == "afar" and not any(k.startswith(TEACHER_PREFIX) for k in cfg["input_features"])
 
     # bavo-eval loads it (no teacher keys at evaluation) and finishes an episode.
     from lerobot_bavo.envs.bavo_env import BavoEnv

@@ -145,7 +145,7 @@ class EpisodeRecorder:
             # a_t
             action = np.asarray(expert.act(obs, info), dtype=np.float32)
             rows["action"].append(action)
-            rows["occlusion_active"].append(float(expert.phase == "recover_view"))
+            rows["occlusion_active"].append(float(expert.recovering))
             obs, _, terminated, truncated, info = env.step(action)
             if terminated or truncated:
                 break

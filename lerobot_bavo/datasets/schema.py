@@ -62,7 +62,6 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     POSE_CHANNELS,
     TEACHER_CHANNELS,
     TEACHER_KEYS,
-    TEACHER_PREFIX,
     TEACHER_VALID,
     TEACHER_VISIBLE,
     TEACHER_Z0,

@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_bavo.envs.tasks.block_stacking import BASE_HALF, REGION_CENTER, TOP_HALF
-from lerobot_bavo.experts.base import ScriptedExpert, rot_from_axes, rot_z
+from lerobot_bavo.experts.base import ScriptedExpert
+from lerobot_bavo.sim.transforms import face_yaw, rot_z, topdown_rot
 
 # Gripper centre minus block centre for the top-down grasps, in the block's yaw frame (m).
 RIGHT_GRASP_OFFSET = np.array([0.0, 0.0, 0.006])
@@ -28,20 +29,10 @@ RIGHT_ASIDE = np.array([0.14, 0.0, 0.03])  # m, then its move out of the left ar
 PRESTACK_GAP = 0.06  # m, top block bottom above the base block top in the pre-stacking pose
 
 
-def face_yaw(rot: np.ndarray) -> float:
-    """Yaw of the block face normal closest to the world x axis, wrapped to [-pi/4, pi/4]."""
-    yaw = np.arctan2(rot[1, 0], rot[0, 0])
-    return (yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4
-
-
-def topdown_rot(side: str, yaw: float) -> np.ndarray:
-    """Gripper pointing down, fingers closing along world x turned by `yaw`.
-
-    Closing along x puts the pads on the blocks' left and right faces as the active camera (at
-    -y) sees them, so the grasped block's front face stays visible.
-    """
-    y = [1.0, 0.0, 0.0] if side == "left" else [-1.0, 0.0, 0.0]
-    return rot_from_axes([0.0, 0.0, -1.0], rot_z(yaw) @ np.array(y))
+# Top-down grasps close the fingers along world x (turned by the block's face yaw): the pads go on the
+# blocks' left and right faces as the active camera (at -y) sees them, so the grasped block's front
+# face stays visible.
+CLOSING = {"left": (1.0, 0.0, 0.0), "right": (-1.0, 0.0, 0.0)}
 
 
 class BlockStackingExpert(ScriptedExpert):
@@ -61,7 +52,7 @@ class BlockStackingExpert(ScriptedExpert):
         # ---- right arm: base block -> stacking region --------------------------------------
         base = self.body_pos("base_block")
         yaw = face_yaw(self.body_rot("base_block"))
-        r_down = topdown_rot("right", yaw)
+        r_down = topdown_rot(CLOSING["right"], yaw)
         grasp = base + rot_z(yaw) @ RIGHT_GRASP_OFFSET
         yield from self.move(45, right=(grasp + [0, 0, APPROACH_HEIGHT], r_down), phase="reach")
         yield from self.move(25, right=(grasp, r_down), phase="descend")
@@ -69,7 +60,7 @@ class BlockStackingExpert(ScriptedExpert):
         yield from self.wait(4)
         yield from self.move(20, right=(grasp + [0, 0, CARRY_CLEARANCE], r_down), phase="lift")
 
-        r_place = topdown_rot("right", 0.0)
+        r_place = topdown_rot(CLOSING["right"], 0.0)
         place = np.array([*REGION_CENTER, BASE_HALF[2] + PLACE_DROP])
         hand = self.in_hand("right", "base_block")
         above = self.gripper_target(place + [0, 0, CARRY_CLEARANCE], r_place, hand)
@@ -81,7 +72,7 @@ class BlockStackingExpert(ScriptedExpert):
         # ---- left arm: top block -> pre-stacking volume -> stack -----------------------------
         top = self.body_pos("top_block")
         t_yaw = face_yaw(self.body_rot("top_block"))
-        l_down = topdown_rot("left", t_yaw)
+        l_down = topdown_rot(CLOSING["left"], t_yaw)
         l_grasp = top + rot_z(t_yaw) @ LEFT_GRASP_OFFSET
         # The right pads straddle the base block along x: lift them clear before moving aside.
         r_up = self.right.pos + [0.0, 0.0, RIGHT_LIFT_OFF]
@@ -95,7 +86,7 @@ class BlockStackingExpert(ScriptedExpert):
 
         base = self.body_pos("base_block")
         b_yaw = face_yaw(self.body_rot("base_block"))
-        l_stack = topdown_rot("left", b_yaw)
+        l_stack = topdown_rot(CLOSING["left"], b_yaw)
         base_top = base[2] + BASE_HALF[2]
         pre = np.array([base[0], base[1], base_top + PRESTACK_GAP + TOP_HALF[2]])
         hand = self.in_hand("left", "top_block")

@@ -11,23 +11,13 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_bavo.envs.tasks.cube_handoff import CUBE_HALF, PLATE_HALF_HEIGHT
-from lerobot_bavo.experts.base import ScriptedExpert, rot_from_axes, rot_z
+from lerobot_bavo.experts.base import ScriptedExpert
+from lerobot_bavo.sim.transforms import face_yaw, rot_from_axes, rot_z, topdown_rot
 
 HANDOFF_POINT = np.array([0.03, 0.04, 0.17])  # cube centre during the handoff, metres
 RIGHT_GRASP_OFFSET = np.array([0.010, 0.0, 0.008])  # gripper centre minus cube centre (top-down)
 LEFT_GRASP_OFFSET = np.array([-0.010, 0.0, -0.010])  # gripper centre minus cube centre (side)
 LEFT_PITCH = 0.3  # rad, the left gripper points slightly downwards
-
-
-def cube_face_yaw(cube_rot: np.ndarray) -> float:
-    """Yaw of the cube face normal closest to the world y axis, wrapped to [-pi/4, pi/4]."""
-    yaw = np.arctan2(cube_rot[1, 0], cube_rot[0, 0])
-    return (yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4
-
-
-def right_topdown_rot(yaw: float) -> np.ndarray:
-    """Right gripper pointing down, fingers closing along the world -y axis turned by `yaw`."""
-    return rot_from_axes([0.0, 0.0, -1.0], rot_z(yaw) @ np.array([0.0, -1.0, 0.0]))
 
 
 def left_side_rot(pitch: float = LEFT_PITCH) -> np.ndarray:
@@ -40,8 +30,8 @@ class CubeHandoffExpert(ScriptedExpert):
 
     def script(self):
         cube = self.body_pos("cube")
-        yaw = cube_face_yaw(self.body_rot("cube"))
-        r_down = right_topdown_rot(yaw)
+        yaw = face_yaw(self.body_rot("cube"))
+        r_down = topdown_rot([0.0, -1.0, 0.0], yaw)
         grasp = cube + rot_z(yaw) @ RIGHT_GRASP_OFFSET
 
         yield from self.move(45, right=(grasp + [0, 0, 0.10], r_down), phase="reach")
@@ -51,7 +41,7 @@ class CubeHandoffExpert(ScriptedExpert):
 
         # Lift straight up, then carry to the handoff point while turning the cube to yaw 0.
         yield from self.move(20, right=(grasp + [0, 0, 0.08], r_down), phase="lift")
-        r_handoff = right_topdown_rot(0.0)
+        r_handoff = topdown_rot([0.0, -1.0, 0.0], 0.0)
         cube_now = self.body_pos("cube")
         in_hand = cube_now - self.gripper_pos("right")
         yield from self.move(40, right=(HANDOFF_POINT - in_hand, r_handoff), phase="carry")

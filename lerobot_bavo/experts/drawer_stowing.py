@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_bavo.envs.tasks.drawer_stowing import BLOCK_HALF, FLOOR_Z
-from lerobot_bavo.experts.base import ScriptedExpert, rot_from_axes, rot_z
+from lerobot_bavo.experts.base import ScriptedExpert
+from lerobot_bavo.sim.transforms import face_yaw, rot_z, topdown_rot
 
 HANDLE_OPENING = 0.45  # gripper command while straddling the bar (pad gap 35 mm, bar 12 mm)
 PULL = 0.11  # m, how far the drawer is pulled open
@@ -25,17 +26,6 @@ DROP_Z = FLOOR_Z[1] + BLOCK_HALF + 0.029  # m, block centre at release: 2.9 cm a
 RELEASE_OPENING = 0.7
 LEFT_CLOSING = np.array([1.0, 0.0, 0.0])  # left finger closing axis over the drawer (world x)
 RIGHT_PARK = np.array([0.24, -0.06, 0.20])  # right gripper while the left arm stows the block
-
-
-def block_face_yaw(block_rot: np.ndarray) -> float:
-    """Yaw of the block face normal closest to the world x axis, wrapped to [-pi/4, pi/4]."""
-    yaw = np.arctan2(block_rot[1, 0], block_rot[0, 0])
-    return (yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4
-
-
-def topdown_rot(closing_axis) -> np.ndarray:
-    """Gripper pointing straight down, fingers closing along `closing_axis` (horizontal)."""
-    return rot_from_axes([0.0, 0.0, -1.0], closing_axis)
 
 
 class DrawerStowingExpert(ScriptedExpert):
@@ -57,8 +47,8 @@ class DrawerStowingExpert(ScriptedExpert):
 
         # -- pull the drawer open; the left arm goes above the block meanwhile.
         block = self.body_pos("block")
-        yaw = block_face_yaw(self.body_rot("block"))
-        l_rot = topdown_rot(rot_z(yaw) @ LEFT_CLOSING)
+        yaw = face_yaw(self.body_rot("block"))
+        l_rot = topdown_rot(LEFT_CLOSING, yaw)
         grasp = block + rot_z(yaw) @ BLOCK_GRASP_OFFSET
         pull_to = self.right.pos + [0.0, -PULL, 0.0]
         yield from self.move(40, right=(pull_to, r_rot), left=(grasp + [0, 0, 0.10], l_rot), phase="pull_open")

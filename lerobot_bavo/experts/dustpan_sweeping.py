@@ -22,7 +22,8 @@ from lerobot_bavo.envs.tasks.dustpan_sweeping import (
     HEAD_HALF,
     TARGET_HALF,
 )
-from lerobot_bavo.experts.base import ScriptedExpert, rot_from_axes, rot_z
+from lerobot_bavo.experts.base import ScriptedExpert
+from lerobot_bavo.sim.transforms import rot_z, topdown_rot, yaw_of
 
 PAN_GRASP = np.array([HANDLE_POS[0], 0.0, HANDLE_POS[2]])  # gripper centre in the pan frame
 BROOM_GRASP_X = 0.075  # m along the broom handle from the head centre
@@ -35,21 +36,11 @@ BROOM_GAP = 0.02  # m between the broom head and the cube before the sweep
 SWEEP_DEPTH = 0.03  # m, cube centre pushed this far past the entrance line
 
 
-def yaw_of(rot: np.ndarray) -> float:
-    return float(np.arctan2(rot[1, 0], rot[0, 0]))
-
-
 def planar_pose(pos, yaw: float) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = rot_z(yaw)
     T[:3, 3] = pos
     return T
-
-
-def topdown_rot(yaw: float, side: str) -> np.ndarray:
-    """Gripper pointing down, fingers closing across an object whose x axis has heading `yaw`."""
-    y = rot_z(yaw) @ np.array([0.0, 1.0 if side == "left" else -1.0, 0.0])
-    return rot_from_axes([0.0, 0.0, -1.0], y)
 
 
 class DustpanSweepingExpert(ScriptedExpert):
@@ -75,7 +66,7 @@ class DustpanSweepingExpert(ScriptedExpert):
         # Left arm: grasp the dustpan handle from above.
         pan = self.object_pose("dustpan")
         pan_yaw = yaw_of(pan[:3, :3])
-        l_rot = topdown_rot(pan_yaw, "left")
+        l_rot = topdown_rot([0.0, 1.0, 0.0], pan_yaw)
         grasp = (pan @ np.append(PAN_GRASP, 1.0))[:3]
         yield from self.move(45, left=(grasp + [0, 0, APPROACH_HEIGHT], l_rot), phase="left_reach")
         yield from self.move(25, left=(grasp, l_rot), phase="left_descend")
@@ -95,7 +86,7 @@ class DustpanSweepingExpert(ScriptedExpert):
 
         # Right arm: grasp the broom handle from above.
         broom = self.object_pose("broom")
-        r_rot = topdown_rot(yaw_of(broom[:3, :3]), "right")
+        r_rot = topdown_rot([0.0, -1.0, 0.0], yaw_of(broom[:3, :3]))
         grasp = (broom @ np.append(BROOM_GRASP, 1.0))[:3]
         yield from self.move(45, right=(grasp + [0, 0, APPROACH_HEIGHT], r_rot), phase="right_reach")
         yield from self.move(25, right=(grasp, r_rot), phase="right_descend")

@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_bavo.envs.tasks.slide_retrieval import BLADE_HALF, HANDLE_OFFSET, PLATFORM_HALF
-from lerobot_bavo.experts.base import ScriptedExpert, rot_from_axes, rot_z
+from lerobot_bavo.experts.base import ScriptedExpert
+from lerobot_bavo.sim.transforms import topdown_rot, yaw_of
 from lerobot_bavo.sim.robot import FINGER_PAD_HALF
 
 TARGET_EXPOSURE = 0.065  # m of handle past the edge after the slide
@@ -23,24 +24,19 @@ LEFT_GRASP_PAST_EDGE = 0.03  # m from the platform edge to the left grasp centre
 LIFT = 0.12  # m
 
 
-def topdown_rot(yaw: float, close_sign: float) -> np.ndarray:
-    """Gripper pointing down, fingers closing along the platform's +-y (turned by `yaw`)."""
-    return rot_from_axes([0.0, 0.0, -1.0], rot_z(yaw) @ np.array([0.0, close_sign, 0.0]))
-
-
 class SlideRetrievalExpert(ScriptedExpert):
     task_name = "slide_retrieval"
 
     def platform_axes(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Platform origin, its x axis (towards the far end; the handle points to -x) and yaw."""
         R = self.body_rot("platform")
-        return self.body_pos("platform"), R[:, 0], float(np.arctan2(R[1, 0], R[0, 0]))
+        return self.body_pos("platform"), R[:, 0], yaw_of(R)
 
     def script(self):
         task = self.env.task
         data = self.env.data
         _, axis, yaw = self.platform_axes()
-        r_rot = topdown_rot(yaw, -1.0)
+        r_rot = topdown_rot([0.0, -1.0, 0.0], yaw)
 
         # -- right: press on the blade and drag the spatula towards the left arm ------------------
         blade = self.body_pos("spatula")
@@ -65,7 +61,7 @@ class SlideRetrievalExpert(ScriptedExpert):
 
         # -- left: grasp the exposed handle from above and lift -----------------------------------
         origin, axis, yaw = self.platform_axes()
-        l_rot = topdown_rot(yaw, 1.0)
+        l_rot = topdown_rot([0.0, 1.0, 0.0], yaw)
         R = self.body_rot("spatula")
         handle_centre = self.body_pos("spatula") + R @ np.asarray(HANDLE_OFFSET)
         hand_axis = R[:, 0]

@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 from lerobot_bavo.sim import constants as C
+from lerobot_bavo.sim.transforms import quat_from_axis_angle, quat_from_matrix
 
 # Collision bitmasks: world/objects use 1; robot geoms use contype 2, conaffinity 1, so they
 # touch world and objects but never each other.
@@ -33,29 +34,6 @@ _CAM_RGBA = (0.25, 0.25, 0.3, 1.0)
 _PAD_RGBA = (0.1, 0.1, 0.1, 1.0)
 
 FINGER_PAD_HALF = (0.016, 0.004, 0.011)  # x (depth), y (thickness), z (height), metres
-
-
-def quat_from_axis_angle(axis, angle: float) -> np.ndarray:
-    axis = np.asarray(axis, dtype=np.float64)
-    axis = axis / np.linalg.norm(axis)
-    half = 0.5 * angle
-    return np.array([math.cos(half), *(math.sin(half) * axis)])
-
-
-def quat_from_matrix(mat: np.ndarray) -> np.ndarray:
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.asarray(mat, dtype=np.float64).reshape(9))
-    return quat
-
-
-def look_at_quat(pos, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Quaternion of a MuJoCo camera at `pos` looking at `target` (camera looks along its -z)."""
-    fwd = np.asarray(target, float) - np.asarray(pos, float)
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, up)
-    right /= np.linalg.norm(right)
-    cam_up = np.cross(right, fwd)
-    return quat_from_matrix(np.column_stack([right, cam_up, -fwd]))
 
 
 def _add_hinge(body, name: str, axis, cls: C.JointClass) -> None:

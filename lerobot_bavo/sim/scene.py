@@ -9,7 +9,8 @@ from __future__ import annotations
 import mujoco
 
 from lerobot_bavo.sim import constants as C
-from lerobot_bavo.sim.robot import add_camera_arm, add_manipulator, look_at_quat
+from lerobot_bavo.sim.robot import add_camera_arm, add_manipulator
+from lerobot_bavo.sim.transforms import look_at_quat
 
 # Third-person view from behind and above the operator side (the camera arm's side), so that
 # left/right in the video match left/right in the active view.

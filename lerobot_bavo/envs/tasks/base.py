@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 
 from lerobot_bavo.eval.metrics import NUM_MILESTONES
+from lerobot_bavo.sim.transforms import yaw_quat
 
 
 class GripperGeoms:
@@ -81,7 +82,7 @@ def set_free_body_pose(model: mujoco.MjModel, data: mujoco.MjData, joint_id: int
     adr = model.jnt_qposadr[joint_id]
     dof = model.jnt_dofadr[joint_id]
     data.qpos[adr:adr + 3] = pos
-    data.qpos[adr + 3:adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+    data.qpos[adr + 3:adr + 7] = yaw_quat(yaw)
     data.qvel[dof:dof + 6] = 0.0
 
 

@@ -60,6 +60,7 @@ from lerobot_bavo.envs.tasks.base import (
     touching,
 )
 from lerobot_bavo.sim import constants as C
+from lerobot_bavo.sim.transforms import yaw_quat
 
 # Platform, in its own frame: origin on the table top under the platform centre, x along the
 # groove (the handle points to -x, towards the left arm; its "left edge" is at x = -0.12), z up.
@@ -154,7 +155,7 @@ class SlideRetrieval(Task):
         yaw = rng.uniform(*PLATFORM_YAW)
         inset = rng.uniform(*TIP_INSET)
         lateral = rng.uniform(*LATERAL_OFFSET)
-        quat = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+        quat = yaw_quat(yaw)
         data.mocap_pos[self.platform_mocap] = [xy[0], xy[1], 0.0]
         data.mocap_quat[self.platform_mocap] = quat
         # Spatula frame in the platform frame: tip `inset` inside the left edge, blade resting on
