@@ -70,13 +70,13 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     unflatten_points,
 )
 from lerobot_bavo.sim import constants as C
+from lerobot_bavo.teacher.protocol import ANCHOR_INDEX, CLIP_LENGTH, FUTURE_INDEX
 
 FPS = C.CONTROL_HZ  # 25
 
-# Teacher configuration (paper, Appendix B): 32-frame clips, anchor 16, future 31 (Delta t = 15).
-CLIP_LENGTH = 32
-ANCHOR_INDEX = 16
-N_FUTURE = 15
+# Teacher configuration (paper, Appendix B; `lerobot_bavo.teacher.protocol`): 32-frame clips, anchor 16,
+# future 31, so Delta t = 15.
+N_FUTURE = FUTURE_INDEX - ANCHOR_INDEX
 
 
 def joint_names() -> list[str]:
