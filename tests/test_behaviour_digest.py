@@ -2,11 +2,10 @@
 
 Each digest hashes, step by step, what an episode is made of: the joint positions (qpos), the
 observation arrays (state, image, point cloud and its pixels), the reward, the milestone flags and
-depth, the occlusion event (target, occluder pose, visibility) and at the end the CVG summary. The
-rollouts are the scripted expert (with and without a frozen camera) on every task, a few dozen steps
-under every condition, at a small image size; one longer Random-time rollout per camera behaviour
-closes a full CVG window, so the expert and frozen-camera results (`bavo-eval`'s rollout record) are
-pinned too.
+depth, the occlusion event (target, occluder pose, visibility), the expert's phase and at the end the
+CVG summary. The rollouts are the seeded scripted expert on every task, a few dozen steps under every
+condition, at a small image size. `bavo-eval`'s rollout records are pinned too: the expert and the
+frozen-camera reference over one full CVG window under Random-time, and a whole Stage episode.
 
 The values come from Mesa llvmpipe EGL rendering on x86-64; another renderer may differ in the
 image bytes. After a deliberate behaviour change, re-pin with

@@ -19,7 +19,7 @@ from lerobot_bavo.sim.rendering import SceneRenderer
 from lerobot_bavo.sim.scene import build_base_spec
 
 CAM_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_1", "wrist_2", "wrist_3")
-MANIP_HOME = np.array([0.0, -0.082, 1.06, 0.0, -0.953, 0.0])
+MANIP_HOME = np.array(C.MANIPULATOR_HOME)
 CAM_HOME = np.array([0.0, -0.6, 0.5, 0.0, 0.5, 0.0, 0.0])  # AV-ALOHA MIDDLE_POSE
 AV_ALOHA_CAMERA_AT_HOME = np.array([0.0, -0.204, 0.472])
 

@@ -18,12 +18,11 @@ from lerobot_bavo.envs.tasks import make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.experts.drawer_stowing import DrawerStowingExpert
-from lerobot_bavo.sim.constants import MANIPULATOR_JOINTS
+from lerobot_bavo.sim.constants import MANIPULATOR_HOME, MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
 from lerobot_bavo.sim.transforms import rot_from_axes, yaw_quat
 from _helpers import EditedScene, milestone_flags
 
-MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
 OPEN = 0.037  # finger slide (m), fully open
 BAR_GRIP = T.HANDLE_RADIUS - 0.0005  # pads 0.5 mm inside the bar's surface
 BLOCK_GRIP = T.BLOCK_HALF - 0.0005
@@ -37,7 +36,8 @@ class Scene(EditedScene):
     """An env whose MjData is edited by hand."""
 
     def place_gripper(self, side: str, pos, rot, opening: float) -> None:
-        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center", MANIP_HOME)
+        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center",
+                            MANIPULATOR_HOME)
         res = kin.ik(pos, rot, max_iters=300, pos_tol=1e-4, rot_tol=1e-3)
         for j, v in zip(MANIPULATOR_JOINTS, res.qpos):
             self.d.qpos[self.qadr(f"{side}_{j}")] = v

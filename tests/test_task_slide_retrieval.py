@@ -17,12 +17,11 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.experts import make_expert
-from lerobot_bavo.sim.constants import MANIPULATOR_JOINTS
+from lerobot_bavo.sim.constants import MANIPULATOR_HOME, MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
 from lerobot_bavo.sim.transforms import rot_from_axes
 from _helpers import EditedScene, milestone_flags
 
-MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
 PAD_DEPTH_HALF = 0.016  # finger pad half depth along the approach axis (robot.py)
 PAD_THICKNESS = 0.008
 CLOSED = 0.002
@@ -64,7 +63,8 @@ class Scene(EditedScene):
 
     def place_gripper(self, side: str, pos, opening: float) -> None:
         rot = self.topdown(side)
-        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center", MANIP_HOME)
+        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center",
+                            MANIPULATOR_HOME)
         pre = kin.ik(np.asarray(pos) + [0, 0, 0.1], rot, max_iters=300, pos_tol=1e-4, rot_tol=1e-3)
         res = kin.ik(pos, rot, q_init=pre.qpos, max_iters=300, pos_tol=5e-5, rot_tol=1e-3)
         for j, v in zip(MANIPULATOR_JOINTS, res.qpos):

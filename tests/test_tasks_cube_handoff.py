@@ -15,12 +15,11 @@ import pytest
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import TASKS, make_task
 from lerobot_bavo.envs.tasks.base import MilestoneTracker
-from lerobot_bavo.sim.constants import MANIPULATOR_JOINTS
+from lerobot_bavo.sim.constants import MANIPULATOR_HOME, MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
 from lerobot_bavo.sim.transforms import rot_from_axes
 from _helpers import EditedScene, milestone_flags
 
-MANIP_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
 CUBE_HALF = 0.025
 PLATE_RADIUS = 0.07
 PLATE_HALF_H = 0.005
@@ -38,7 +37,8 @@ class Scene(EditedScene):
     """An env whose MjData is edited by hand."""
 
     def place_gripper(self, side: str, pos, rot, opening: float) -> np.ndarray:
-        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center", MANIP_HOME)
+        kin = ArmKinematics(self.m, [f"{side}_{j}" for j in MANIPULATOR_JOINTS], f"{side}_gripper_center",
+                            MANIPULATOR_HOME)
         # Approach from 10 cm above, then solve at the target from there (local DLS converges
         # reliably from a nearby start).
         pre = kin.ik(np.asarray(pos) + [0, 0, 0.1], rot, max_iters=300, pos_tol=1e-4, rot_tol=1e-3)

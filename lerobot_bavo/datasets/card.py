@@ -15,7 +15,6 @@ from lerobot_bavo.envs.conditions import CONDITIONS
 PAPER = "Recovering the View: Benchmarking Physical Active Vision for Occlusion Recovery in Robotic Manipulation (BAVO-Bench / A-FAR), arXiv 2609.37292"
 
 
-
 def _feature_rows(settings: dict) -> list[str]:
     n = settings["n_points"]
     h, w = settings["image_height"], settings["image_width"]
