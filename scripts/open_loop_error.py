@@ -1,0 +1,89 @@
+"""Open-loop action error of a trained checkpoint on its own training frames (a failure-ladder diagnostic).
+
+Why: a behaviour-cloned policy that fails closed loop either has not fit its demonstrations (large error
+here, a budget/capacity problem) or fits them and drifts off them closed loop (small error here, a
+covariate-shift problem). This script measures the first: for every `--every`-th frame of the chosen
+episodes it feeds the policy the recorded observation window (the same `n_obs_steps` frames
+`lerobot-train` gives it, clamped at the episode start), samples one chunk with a fixed noise seed, and
+compares the `n_action_steps` executed actions with the recorded ones (clamped at the episode end).
+
+Units: arm and camera-arm joints in radians (mean absolute error over the 19 joint dims), grippers in
+the action's own [0, 1] units. Also prints the "lead slope": the least-squares slope of the predicted
+(target - current state) against the recorded one over the arm joints, 1.0 when the policy leads the
+state by as much as the demonstrator did, below 1 when it lags.
+
+    python scripts/open_loop_error.py --policy outputs/train/RUN/checkpoints/last/pretrained_model \\
+        --root outputs/datasets/bavo_cube_handoff_state --episodes 0,1,2 --every 25
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap.add_argument("--policy", required=True, help="a pretrained_model directory")
+    ap.add_argument("--root", required=True, help="the training view the checkpoint was trained on")
+    ap.add_argument("--episodes", default="0,1,2", help="comma-separated episode indices (default 0,1,2)")
+    ap.add_argument("--every", type=int, default=25, help="evaluate every k-th frame (default 25)")
+    ap.add_argument("--seed", type=int, default=0, help="noise seed of the sampled chunks (default 0)")
+    args = ap.parse_args()
+
+    import pandas as pd
+    import torch
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    import lerobot_bavo.policies  # noqa: F401  (registers the policy types)
+    from lerobot_bavo.sim.constants import GRIPPER_INDICES
+
+    torch.set_num_threads(1)
+    path = Path(args.policy)
+    cfg = PreTrainedConfig.from_pretrained(path)
+    cfg.device = "cpu"
+    policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
+    pre, post = make_pre_post_processors(policy_cfg=cfg, pretrained_path=str(path))
+    obs_keys = [k for k in cfg.input_features]
+    to, n_exec = cfg.n_obs_steps, cfg.n_action_steps
+
+    files = sorted(Path(args.root, "data").rglob("*.parquet"))
+    df = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
+    joints = [i for i in range(21) if i not in GRIPPER_INDICES]
+    errs_j, errs_g, lead_pred, lead_true = [], [], [], []
+    gen = torch.Generator().manual_seed(args.seed)
+    for ep in (int(e) for e in args.episodes.split(",")):
+        rows = df[df["episode_index"] == ep].sort_values("frame_index")
+        if rows.empty:
+            raise SystemExit(f"episode {ep} is not in {args.root}")
+        cols = {k: np.stack(rows[k].to_numpy()).astype(np.float32) for k in [*obs_keys, "action"]}
+        n = len(rows)
+        for i in range(0, n, args.every):
+            window = np.clip(np.arange(i - to + 1, i + 1), 0, n - 1)
+            batch = {k: torch.from_numpy(cols[k][window])[None] for k in obs_keys}
+            batch["task"] = [""]
+            batch = pre(batch)
+            with torch.inference_mode():
+                chunk = policy.predict_action_chunk(batch, generator=gen)
+            pred = post(chunk).squeeze(0).numpy()
+            true = cols["action"][np.clip(np.arange(i, i + n_exec), 0, n - 1)]
+            errs_j.append(np.abs(pred[:, joints] - true[:, joints]).mean())
+            errs_g.append(np.abs(pred[:, list(GRIPPER_INDICES)] - true[:, list(GRIPPER_INDICES)]).mean())
+            state = cols["observation.state"][i]
+            lead_pred.append((pred[:, joints] - state[joints]).ravel())
+            lead_true.append((true[:, joints] - state[joints]).ravel())
+    lp, lt = np.concatenate(lead_pred), np.concatenate(lead_true)
+    slope = float(lp @ lt / max(lt @ lt, 1e-12))
+    print(f"{path}: {len(errs_j)} chunks; joint MAE {np.mean(errs_j):.4f} rad (max {np.max(errs_j):.4f}); "
+          f"gripper MAE {np.mean(errs_g):.3f}; lead slope {slope:.2f}")
+
+
+if __name__ == "__main__":
+    main()
