@@ -49,6 +49,10 @@ ANN_ACTIVE = f"{ANNOTATION_PREFIX}.occlusion_active"
 ANN_TARGET = f"{ANNOTATION_PREFIX}.occlusion_target"
 ANN_VISIBILITY = f"{ANNOTATION_PREFIX}.visibility"
 ANN_SEED = f"{ANNOTATION_PREFIX}.episode_seed"
+# Who demonstrated an episode: the value is the index in SOURCES (bavo-collect's expert 0, bavo-teleop's human 1).
+# Not in ANNOTATION_KEYS: datasets collected before it existed lack it and stay valid.
+ANN_SOURCE = f"{ANNOTATION_PREFIX}.source"
+SOURCES = ("expert", "human")
 ANNOTATION_KEYS = (ANN_PROGRESS, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET, ANN_VISIBILITY, ANN_SEED)
 
 # ------------------------------------------------------------------ per-point / per-object channels
@@ -108,9 +112,9 @@ def flatten_points(x):
 
 __all__ = [
     "ACTION", "ANNOTATION_KEYS", "ANNOTATION_PREFIX", "ANN_ACTIVE", "ANN_EVENT", "ANN_EVENT_START", "ANN_PROGRESS",
-    "ANN_SEED", "ANN_TARGET", "ANN_VISIBILITY", "ENV_ENV_STATE_KEY", "ENV_IMAGE_KEY", "ENV_POINT_CLOUD_KEY",
-    "ENV_POINT_PIXELS_KEY", "ENV_STATE_KEY", "OBS_CAMERA_POSE", "OBS_ENV_STATE", "OBS_IMAGE", "OBS_POINT_CLOUD",
-    "OBS_POINT_PIXELS", "OBS_STATE", "ObservationSettings", "PIXEL_CHANNELS", "POINT_CHANNELS", "POINT_FRAMES",
-    "POSE_CHANNELS", "TEACHER_CHANNELS", "TEACHER_KEYS", "TEACHER_PREFIX", "TEACHER_VALID", "TEACHER_VISIBLE",
-    "TEACHER_Z0", "TEACHER_ZF", "flatten_points", "unflatten_points",
+    "ANN_SEED", "ANN_SOURCE", "ANN_TARGET", "ANN_VISIBILITY", "ENV_ENV_STATE_KEY", "ENV_IMAGE_KEY",
+    "ENV_POINT_CLOUD_KEY", "ENV_POINT_PIXELS_KEY", "ENV_STATE_KEY", "OBS_CAMERA_POSE", "OBS_ENV_STATE", "OBS_IMAGE",
+    "OBS_POINT_CLOUD", "OBS_POINT_PIXELS", "OBS_STATE", "ObservationSettings", "PIXEL_CHANNELS", "POINT_CHANNELS",
+    "POINT_FRAMES", "POSE_CHANNELS", "SOURCES", "TEACHER_CHANNELS", "TEACHER_KEYS", "TEACHER_PREFIX", "TEACHER_VALID",
+    "TEACHER_VISIBLE", "TEACHER_Z0", "TEACHER_ZF", "flatten_points", "unflatten_points",
 ]

@@ -154,8 +154,7 @@ def run_job(job: dict) -> dict:
     as the completion marker; both through atomic renames.
     """
     global _RECORDER, _RECORDER_KEY
-    from lerobot_bavo.datasets.recording import EpisodeRecorder, episode_frames
-    from lerobot_bavo.teacher.simulator import teacher_targets
+    from lerobot_bavo.datasets.recording import EpisodeRecorder
 
     settings = ObservationSettings(**job["settings"])
     key = (job["task"], job["condition"], settings, job["episode_length"])
@@ -164,14 +163,25 @@ def run_job(job: dict) -> dict:
             _RECORDER.close()
         _RECORDER = EpisodeRecorder(job["task"], job["condition"], settings, job["episode_length"])
         _RECORDER_KEY = key
-    staging = Path(job["staging"])
-    seed = int(job["seed"])
     cpu0 = time.process_time()
-    record = _RECORDER.record(seed)
-    kept = record.success or job["keep_failures"]
+    record = _RECORDER.record(int(job["seed"]))
+    return stage_episode(record, Path(job["staging"]), record.success or job["keep_failures"], cpu0)
+
+
+def stage_episode(record, staging: Path, kept: bool, cpu0: float | None = None) -> dict:
+    """Compute a recorded episode's teacher targets and stage it for `Collector._commit`; returns its summary.
+
+    Writes `<staging>/seed_<seed>.npz` (dataset columns) when `kept`, then `<staging>/seed_<seed>.json`
+    (the summary) as the completion marker; both through atomic renames. Also used by `bavo-teleop`.
+    """
+    from lerobot_bavo.datasets.recording import episode_frames
+    from lerobot_bavo.teacher.simulator import teacher_targets
+
+    cpu0 = time.process_time() if cpu0 is None else cpu0
+    seed = int(record.seed)
     summary = {"seed": seed, "success": record.success, "kept": kept, "length": record.length,
                "progress": record.final_progress, "recoveries": record.recoveries,
-               "episode_s": round(record.timings["episode_s"], 3)}
+               "episode_s": round(record.timings["episode_s"], 3), "source": record.source}
     if kept:
         t0 = time.perf_counter()
         targets = teacher_targets(record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX)
@@ -432,6 +442,8 @@ class Collector:
                     n = cols[S.ACTION].shape[0]
                     if n != b["length"]:
                         raise CollectionError(f"staged episode seed {b['seed']} has {n} frames, its marker says {b['length']}")
+                    if S.ANN_SOURCE not in ds.features:  # a dataset collected before the column existed
+                        cols.pop(S.ANN_SOURCE, None)
                     for t in range(n):
                         frame = {k: v[t] for k, v in cols.items()}
                         frame["task"] = description

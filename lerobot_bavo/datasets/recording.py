@@ -61,6 +61,7 @@ class EpisodeRecord:
     K: np.ndarray
     timings: dict = field(default_factory=dict)
     recoveries: int = 0
+    source: str = "expert"  # S.SOURCES: "expert" (scripted) or "human" (bavo-teleop)
 
     @property
     def length(self) -> int:
@@ -97,13 +98,19 @@ class EpisodeRecorder:
         self._seg.close()
         self.env.close()
 
-    def record(self, seed: int) -> EpisodeRecord:
+    def record(self, seed: int, agent=None) -> EpisodeRecord:
+        """Record the episode of `seed`, driven by the scripted expert, or by `agent` when given.
+
+        `agent` (e.g. `lerobot_bavo.teleop`'s human operator) has the expert's interface: `reset()`,
+        `act(obs, info)`, `phase` ("recover_view" marks recovery frames), and optionally `source`
+        ("human") and `stop_requested` (True ends the episode after the current step).
+        """
         from lerobot_bavo.experts import make_expert
 
         env = self.env
         t0 = time.perf_counter()
         obs, info = env.reset(seed=seed)
-        expert = make_expert(env, seed=seed)
+        expert = make_expert(env, seed=seed) if agent is None else agent
         expert.reset()
         task = env.task
         rows: dict[str, list] = {k: [] for k in (
@@ -147,7 +154,7 @@ class EpisodeRecorder:
             rows["action"].append(action)
             rows["occlusion_active"].append(float(expert.recovering))
             obs, _, terminated, truncated, info = env.step(action)
-            if terminated or truncated:
+            if terminated or truncated or getattr(expert, "stop_requested", False):
                 break
         arrays = {k: np.stack(v) for k, v in rows.items()}
         wall = time.perf_counter() - t0
@@ -167,6 +174,7 @@ class EpisodeRecorder:
             body_xmat=arrays["body_xmat"], K=self.K.copy(),
             timings={"episode_s": wall, "segmentation_s": t_render},
             recoveries=len(getattr(expert, "recoveries", [])),
+            source=getattr(expert, "source", "expert"),
         )
 
 
@@ -202,5 +210,6 @@ def episode_frames(record: EpisodeRecord, targets: dict[str, np.ndarray]) -> dic
         S.ANN_TARGET: record.occlusion_target.reshape(T, 1).astype(np.int64),
         S.ANN_VISIBILITY: record.visibility.reshape(T, 1).astype(np.float32),
         S.ANN_SEED: np.full((T, 1), record.seed, dtype=np.int64),
+        S.ANN_SOURCE: np.full((T, 1), S.SOURCES.index(record.source), dtype=np.int64),
     }
     return col

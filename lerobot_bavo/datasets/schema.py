@@ -28,6 +28,7 @@ Features (N = points per cloud, H x W = active image size; all per frame, 25 fps
 | annotation.occlusion_target | (1,) | int64 | stage index s of the event's target, i.e. the target is `task.stage_targets[s]`; -1 if none |
 | annotation.visibility | (1,) | float32 | visibility ratio V of the current target in [0, 1] (privileged render); -1 under Clean |
 | annotation.episode_seed | (1,) | int64 | the env / expert seed of the episode |
+| annotation.source | (1,) | int64 | who demonstrated the episode: 0 = scripted expert (`bavo-collect`), 1 = human (`bavo-teleop`); absent from datasets collected before it existed |
 
 `annotation.*` columns are kept in the dataset but never reach a policy: LeRobot's
 `dataset_to_policy_features` types only `observation.*` and `action*` keys, and
@@ -48,6 +49,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     ANN_EVENT_START,
     ANN_PROGRESS,
     ANN_SEED,
+    ANN_SOURCE,
     ANN_TARGET,
     ANN_VISIBILITY,
     ANNOTATION_KEYS,
@@ -60,6 +62,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     PIXEL_CHANNELS,
     POINT_CHANNELS,
     POSE_CHANNELS,
+    SOURCES,
     TEACHER_CHANNELS,
     TEACHER_KEYS,
     TEACHER_VALID,
@@ -119,6 +122,7 @@ def build_features(settings: ObservationSettings, use_videos: bool = True, env_s
         ANN_TARGET: vec(1, "int64"),
         ANN_VISIBILITY: vec(1),
         ANN_SEED: vec(1, "int64"),
+        ANN_SOURCE: vec(1, "int64"),
     }
     return features
 
@@ -192,6 +196,8 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
         if key in TEACHER_KEYS and not require_teacher and key not in features:
             continue
         if key in ANNOTATION_KEYS and not require_annotations and key not in features:
+            continue
+        if key == ANN_SOURCE and key not in features:  # datasets collected before the column existed
             continue
         if key not in features:
             raise ValueError(f"missing feature {key!r} (expected shape {shape}, dtype {dtype})")

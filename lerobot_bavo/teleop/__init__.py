@@ -1,0 +1,10 @@
+"""Human demonstrations by browser teleoperation (`bavo-teleop`), recorded as BAVO datasets.
+
+- `controls`: operator input -> end-effector targets -> joint targets through our IK (pure, deterministic).
+- `session`: the operator as an agent of the dataset recorder, input logs and their replay, the dataset writer.
+- `server`: the web server (aiohttp) and the `bavo-teleop` CLI; `static/` holds the page.
+"""
+
+from lerobot_bavo.teleop.controls import CONTROLS_HELP, TeleopController, TickInput
+
+__all__ = ["CONTROLS_HELP", "TeleopController", "TickInput"]

@@ -1,0 +1,5 @@
+import sys
+
+from lerobot_bavo.teleop.server import main
+
+sys.exit(main())
