@@ -177,6 +177,7 @@ class ArmTarget:
     q: np.ndarray
     gripper: float = 1.0
     look_at: np.ndarray | None = None  # camera arm in look-at mode
+    goal_q: np.ndarray | None = None  # camera arm: IK solution still being approached (joint-rate limit)
 
 
 @dataclass
@@ -221,6 +222,9 @@ class TeleopController:
             v = motion_command(inp)
             if np.any(v != 0.0):
                 self._move(self.active, v)
+        cam = self.arms["camera"]
+        if cam.goal_q is not None and not self.camera_moved:  # keep approaching the last camera goal
+            self._rate_limit_camera(cam.goal_q)
         return self.action()
 
     def action(self) -> np.ndarray:
@@ -291,17 +295,23 @@ class TeleopController:
         arm = self.arms[name]
         kin = self.env.kinematics[name]
         if name == "camera":
-            res = kin.ik(pos, rot, q_init=arm.q, rot_weight=0.5, nullspace_gain=0.2)
-            max_delta = CAMERA_MAX_JOINT_SPEED * C.CONTROL_DT
-            q = arm.q + np.clip(res.qpos - arm.q, -max_delta, max_delta)
+            res = kin.ik(pos, rot, q_init=arm.goal_q if arm.goal_q is not None else arm.q, rot_weight=0.5,
+                         nullspace_gain=0.2)
+            self._rate_limit_camera(res.qpos)
         else:
             res = kin.ik(pos, rot, q_init=arm.q)
-            q = res.qpos
-        arm.q = q
-        if res.converged and q is res.qpos:
+            arm.q = res.qpos
+        if res.converged:
             arm.pos, arm.rot = np.asarray(pos, float), np.asarray(rot, float)
-        else:  # out of reach or rate-limited: the target is where the arm can really be
-            arm.pos, arm.rot = kin.fk(q)
+        else:  # out of reach: the target is where the arm can really be (no wind-up)
+            arm.pos, arm.rot = kin.fk(res.qpos)
+
+    def _rate_limit_camera(self, goal_q: np.ndarray) -> None:
+        """Step the camera arm's joint target towards `goal_q` at most CAMERA_MAX_JOINT_SPEED."""
+        cam = self.arms["camera"]
+        max_delta = CAMERA_MAX_JOINT_SPEED * C.CONTROL_DT
+        cam.q = cam.q + np.clip(goal_q - cam.q, -max_delta, max_delta)
+        cam.goal_q = None if np.array_equal(cam.q, goal_q) else goal_q
 
     # ------------------------------------------------------------------ WebXR
     def _xr(self, xr: dict) -> None:

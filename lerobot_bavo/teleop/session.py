@@ -281,7 +281,12 @@ class HumanDataset:
         col = self.collector
         try:
             n = len(self)
-            col.cfg.episodes = max(1, n)
+            if n == 0:  # nothing saved: an empty dataset (statistics need data)
+                import shutil
+
+                shutil.rmtree(col.staging, ignore_errors=True)
+                return
+            col.cfg.episodes = n
             col._finish({"started": time.strftime("%Y-%m-%d %H:%M:%S"), "requested": n, "committed_before": n,
                          "workers": 0, "attempts": 0, "reused_staged": 0, "tool": "bavo-teleop"}, 0.0)
         finally:
