@@ -336,6 +336,10 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
                 print(f"key press -> next rendered frame: median {np.median(latencies):.0f} ms, "
                       f"max {np.max(latencies):.0f} ms over {len(latencies)} presses")
                 assert np.median(latencies) < 500
+                # what headless Chromium offers for WebXR by itself (the page then hides its "Enter VR" button)
+                native = page.evaluate("navigator.xr ? navigator.xr.isSessionSupported('immersive-vr') : 'no navigator.xr'")
+                assert native in (False, "no navigator.xr") and not page.is_visible("#b-xr")
+                print(f"headless Chromium: navigator.xr immersive-vr supported = {native}")
             finally:
                 ctx.close()
     finally:
@@ -350,3 +354,74 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
     actions = np.stack([np.asarray(ds.hf_dataset[i][S.ACTION]) for i in range(60)])
     np.testing.assert_array_equal(actions, record.action)  # the browser episode replays bit for bit
     assert record.action[-1, 7:13].tolist() != record.action[0, 7:13].tolist()
+
+
+# A stand-in for a WebXR device: headless Chromium offers `navigator.xr` but no immersive-vr device and
+# no built-in emulation, so this init script replaces `navigator.xr` with a minimal XR system whose
+# poses the test sets. It exercises the page's WebXR code (session set-up, viewer and grip poses per
+# XR frame, triggers) and everything after it; it says nothing about real headsets or Chromium's XR stack.
+FAKE_XR = """
+(() => {
+  const state = { head: [0, 1.6, 0, 0, 0, 0, 1], left: [-0.2, 1.0, -0.3, 0, 0, 0, 1],
+                  right: [0.2, 1.0, -0.3, 0, 0, 0, 1], rt: 0 };
+  window.__xr = state;
+  const pose = (a) => ({ transform: { position: { x: a[0], y: a[1], z: a[2] },
+                                      orientation: { x: a[3], y: a[4], z: a[5], w: a[6] } } });
+  class FakeSession extends EventTarget {
+    constructor() {
+      super();
+      this.inputSources = [
+        { handedness: "left", gripSpace: "left", gamepad: { buttons: [{ value: 0 }] } },
+        { handedness: "right", gripSpace: "right", gamepad: { buttons: [{ get value() { return state.rt; } }] } }];
+    }
+    updateRenderState() {}
+    async requestReferenceSpace() { return "ref"; }
+    requestAnimationFrame(cb) {
+      return setTimeout(() => cb(performance.now(), { getViewerPose: () => pose(state.head),
+                                                      getPose: (space) => pose(state[space]) }), 16);
+    }
+    end() { this.dispatchEvent(new Event("end")); }
+  }
+  window.XRWebGLLayer = class { constructor() {} };
+  Object.defineProperty(navigator, "xr", { configurable: true, value: {
+    isSessionSupported: async (mode) => mode === "immersive-vr",
+    requestSession: async () => new FakeSession() } });
+})();
+"""
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's `chromium` (apt-get install chromium)")
+def test_page_webxr_path_drives_camera_and_arms_with_a_stand_in_device(tmp_path):
+    playwright_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (pip install playwright)")
+    proc, url = start_server(tmp_path / "human", "--image-height", "48", "--image-width", "64", "--n-points", "32",
+                             "--episode-length", "200", "--third-person-height", "120")
+    try:
+        with playwright_api.sync_playwright() as p:
+            ctx = p.chromium.launch_persistent_context(str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True,
+                                                       args=CHROMIUM_ARGS)
+            try:
+                page = ctx.new_page()
+                page.add_init_script(FAKE_XR)
+                page.goto(url)
+                page.wait_for_function("window.bavo && window.bavo.frames > 0", timeout=30000)
+                page.keyboard.press("n")
+                page.wait_for_function("window.bavo.status.state === 'running'", timeout=60000)
+                page.click("#b-xr")
+                time.sleep(0.5)
+                ee0 = page.evaluate("window.bavo.lastHeader.ee")
+                page.evaluate("window.__xr.head[1] += 0.05; window.__xr.right[0] += 0.06; window.__xr.rt = 1;")
+                time.sleep(1.2)
+                h = page.evaluate("window.bavo.lastHeader")
+                assert h["ee"]["camera"][2] - ee0["camera"][2] > 0.03, (ee0, h["ee"])  # head up -> camera up
+                assert h["ee"]["right"][0] - ee0["right"][0] > 0.04, (ee0, h["ee"])  # right hand +x -> right arm +x
+                assert abs(h["ee"]["left"][0] - ee0["left"][0]) < 0.01 and h["grippers"]["right"] == 0.0
+                page.click("#b-xr")  # exit VR: the keyboard drives again
+                page.keyboard.press("1")
+                hold(page, "d", 0.4)
+                time.sleep(0.3)
+                assert page.evaluate("window.bavo.lastHeader.ee.left[0]") - h["ee"]["left"][0] > 0.02
+            finally:
+                ctx.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=120)
