@@ -374,15 +374,18 @@ FAKE_XR = """
         { handedness: "left", gripSpace: "left", gamepad: { buttons: [{ value: 0 }] } },
         { handedness: "right", gripSpace: "right", gamepad: { buttons: [{ get value() { return state.rt; } }] } }];
     }
-    updateRenderState() {}
+    updateRenderState(s) { this.renderState = s; }
     async requestReferenceSpace() { return "ref"; }
     requestAnimationFrame(cb) {
-      return setTimeout(() => cb(performance.now(), { getViewerPose: () => pose(state.head),
+      return setTimeout(() => cb(performance.now(), { getViewerPose: () => Object.assign(pose(state.head), { views: [{}] }),
                                                       getPose: (space) => pose(state[space]) }), 16);
     }
     end() { this.dispatchEvent(new Event("end")); }
   }
-  window.XRWebGLLayer = class { constructor() {} };
+  window.XRWebGLLayer = class {
+    constructor() { this.framebuffer = null; }
+    getViewport() { return { x: 0, y: 0, width: 300, height: 150 }; }
+  };
   Object.defineProperty(navigator, "xr", { configurable: true, value: {
     isSessionSupported: async (mode) => mode === "immersive-vr",
     requestSession: async () => new FakeSession() } });
@@ -415,6 +418,9 @@ def test_page_webxr_path_drives_camera_and_arms_with_a_stand_in_device(tmp_path)
                 assert h["ee"]["camera"][2] - ee0["camera"][2] > 0.03, (ee0, h["ee"])  # head up -> camera up
                 assert h["ee"]["right"][0] - ee0["right"][0] > 0.04, (ee0, h["ee"])  # right hand +x -> right arm +x
                 assert abs(h["ee"]["left"][0] - ee0["left"][0]) < 0.01 and h["grippers"]["right"] == 0.0
+                webgl, drawn = page.evaluate("[window.bavo.xrWebGL, window.bavo.xrFramesDrawn || 0]")
+                assert drawn > 0 or not webgl  # the headset view is drawn where WebGL exists
+                print(f"WebXR stand-in: WebGL {webgl}, {drawn} headset frames drawn")
                 page.click("#b-xr")  # exit VR: the keyboard drives again
                 page.keyboard.press("1")
                 hold(page, "d", 0.4)

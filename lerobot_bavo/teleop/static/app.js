@@ -85,9 +85,48 @@ function poseArray(pose) {
   const p = pose.transform.position, o = pose.transform.orientation;
   return [p.x, p.y, p.z, o.x, o.y, o.z, o.w].map((v) => Math.round(v * 1e5) / 1e5);
 }
+// In the headset: the active-camera view on a head-locked screen (the same image for both eyes).
+let xrGL = null, xrTex = null;
+function xrSetupGL(gl) {
+  const shader = (type, src) => { const sh = gl.createShader(type); gl.shaderSource(sh, src); gl.compileShader(sh); return sh; };
+  const prog = gl.createProgram();
+  gl.attachShader(prog, shader(gl.VERTEX_SHADER,
+    "attribute vec2 p; varying vec2 uv; void main() { uv = vec2(p.x + 1.0, 1.0 - p.y) * 0.5; gl_Position = vec4(p * 0.8, 0.0, 1.0); }"));
+  gl.attachShader(prog, shader(gl.FRAGMENT_SHADER,
+    "precision mediump float; varying vec2 uv; uniform sampler2D t; void main() { gl_FragColor = texture2D(t, uv); }"));
+  gl.linkProgram(prog);
+  gl.useProgram(prog);
+  gl.bindBuffer(gl.ARRAY_BUFFER, gl.createBuffer());
+  gl.bufferData(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, -1, 1, 1, -1, 1, 1]), gl.STATIC_DRAW);
+  const loc = gl.getAttribLocation(prog, "p");
+  gl.enableVertexAttribArray(loc);
+  gl.vertexAttribPointer(loc, 2, gl.FLOAT, false, 0, 0);
+  xrTex = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, xrTex);
+  for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
+                        [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_2D, k, v);
+  xrGL = gl;
+}
+function xrDraw(viewer) {
+  const layer = xrSession.renderState.baseLayer;
+  if (!xrGL || !layer) return;
+  const gl = xrGL;
+  gl.bindFramebuffer(gl.FRAMEBUFFER, layer.framebuffer);
+  gl.clearColor(0.12, 0.12, 0.13, 1);
+  gl.clear(gl.COLOR_BUFFER_BIT);
+  gl.bindTexture(gl.TEXTURE_2D, xrTex);
+  gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA, gl.RGBA, gl.UNSIGNED_BYTE, $("active"));
+  for (const view of viewer.views) {
+    const vp = layer.getViewport(view);
+    gl.viewport(vp.x, vp.y, vp.width, vp.height);
+    gl.drawArrays(gl.TRIANGLES, 0, 6);
+  }
+  bavo.xrFramesDrawn = (bavo.xrFramesDrawn || 0) + 1;
+}
 function onXRFrame(t, frame) {
   xrSession.requestAnimationFrame(onXRFrame);
   const viewer = frame.getViewerPose(xrSpace);
+  if (viewer) xrDraw(viewer);
   if (!viewer || t - xrLastSend < 20) return;
   xrLastSend = t;
   const xr = { head: poseArray(viewer) };
@@ -111,6 +150,8 @@ async function setupXR() {
     if (xrSession) { xrSession.end(); return; }
     xrSession = await navigator.xr.requestSession("immersive-vr", { optionalFeatures: ["local-floor"] });
     const gl = document.createElement("canvas").getContext("webgl", { xrCompatible: true });
+    if (gl) xrSetupGL(gl);
+    bavo.xrWebGL = Boolean(gl);
     xrSession.updateRenderState({ baseLayer: new XRWebGLLayer(xrSession, gl) });
     try { xrSpace = await xrSession.requestReferenceSpace("local-floor"); }
     catch (e) { xrSpace = await xrSession.requestReferenceSpace("local"); }
