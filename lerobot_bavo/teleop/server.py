@@ -132,7 +132,10 @@ class TeleopServer:
                 except ValueError:
                     continue
                 if data.get("type") == "input":
-                    self.session.input.update(data)
+                    try:
+                        self.session.input.update(data)
+                    except (TypeError, ValueError, AttributeError):
+                        logger.warning("ignored a malformed input message: %.200s", msg.data)
                 elif data.get("type") == "cmd" and data.get("cmd") in ("start", "stop", "save", "discard", "rerecord"):
                     self.session.command(data["cmd"])
         finally:
@@ -149,16 +152,16 @@ class TeleopServer:
         if self.session.error is not None:
             raise self.session.error
         runner = web.AppRunner(self.app(), handle_signals=False)
-        await runner.setup()
-        site = web.TCPSite(runner, host, port)
-        await site.start()
-        bound = runner.addresses[0]
-        print(f"bavo-teleop: serving http://{bound[0]}:{bound[1]}/ (dataset {self.session.root}); Ctrl+C stops",
-              flush=True)
-        stop = asyncio.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self.loop.add_signal_handler(sig, stop.set)
         try:
+            await runner.setup()
+            site = web.TCPSite(runner, host, port)
+            await site.start()  # OSError when the port is taken
+            bound = runner.addresses[0]
+            print(f"bavo-teleop: serving http://{bound[0]}:{bound[1]}/ (dataset {self.session.root}); Ctrl+C stops",
+                  flush=True)
+            stop = asyncio.Event()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.loop.add_signal_handler(sig, stop.set)
             await stop.wait()
         finally:
             print("bavo-teleop: stopping (saved episodes are kept)", flush=True)
