@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.teleop.controls import TeleopController, TickInput, motion_command
 
-SETTINGS = S.DatasetSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = ObservationSettings(image_height=48, image_width=64, n_points=32)
 REPO = "tester/bavo_human"
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
 

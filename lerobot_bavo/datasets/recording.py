@@ -102,7 +102,7 @@ class EpisodeRecorder:
         """Record the episode of `seed`, driven by the scripted expert, or by `agent` when given.
 
         `agent` (e.g. `lerobot_bavo.teleop`'s human operator) has the expert's interface: `reset()`,
-        `act(obs, info)`, `phase` ("recover_view" marks recovery frames), and optionally `source`
+        `act(obs, info)`, `recovering` (True marks recovery frames), and optionally `source`
         ("human") and `stop_requested` (True ends the episode after the current step).
         """
         from lerobot_bavo.experts import make_expert

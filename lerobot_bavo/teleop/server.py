@@ -27,7 +27,7 @@ import struct
 import sys
 from pathlib import Path
 
-from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.teleop.controls import CONTROLS_HELP
 
 STATIC = Path(__file__).parent / "static"
@@ -173,6 +173,8 @@ class TeleopServer:
 
 # ====================================================================== CLI
 def build_parser() -> argparse.ArgumentParser:
+    from lerobot_bavo.envs.conditions import CONDITIONS
+
     p = argparse.ArgumentParser(
         prog="bavo-teleop", formatter_class=argparse.RawDescriptionHelpFormatter,
         description=__doc__.split("\n\n")[0] + "\n\n" + "\n\n".join(__doc__.split("\n\n")[1:]),
@@ -181,7 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(seeds --seed, --seed + 1, ...), it ends at success, at the step limit or with X; Enter saves, Backspace "
         "discards (nothing is written), Z re-records the same seed.")
     p.add_argument("--task", help="benchmark task, e.g. cube_handoff")
-    p.add_argument("--condition", default="stage", choices=("clean", "stage", "random"), help="visibility condition")
+    p.add_argument("--condition", default="stage", choices=tuple(CONDITIONS), help="visibility condition")
     p.add_argument("--repo-id", help="<user>/<name> of the dataset, e.g. me/bavo_human_cube_handoff")
     p.add_argument("--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: this machine only)")
@@ -223,7 +225,7 @@ def _replay(args) -> int:
             print("bavo-teleop: error: --replay with --root also needs --repo-id", file=sys.stderr)
             return 2
         ds = HumanDataset(args.repo_id, args.root, header["task"], header["condition"],
-                          S.DatasetSettings(**header["settings"]), header["episode_length"], int(header["seed"]),
+                          ObservationSettings(**header["settings"]), header["episode_length"], int(header["seed"]),
                           command="bavo-teleop " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
         try:
             summary["saved"] = ds.save(record, agent.inputs)
@@ -245,10 +247,12 @@ def main(argv: list[str] | None = None) -> int:
         return _replay(args)
     if not args.task or not args.repo_id:
         parser.error("--task and --repo-id are required (or --replay INPUT_LOG)")
-    from lerobot_bavo.envs.tasks import TASK_NAMES
+    from lerobot_bavo.envs.tasks import make_task
 
-    if args.task not in TASK_NAMES:
-        parser.error(f"unknown --task {args.task!r}; expected one of {', '.join(TASK_NAMES)}")
+    try:
+        make_task(args.task)
+    except ValueError as e:
+        parser.error(f"--task: {e}")
     if "/" not in args.repo_id:
         parser.error(f"--repo-id must look like '<user>/<name>', got {args.repo_id!r}")
     _require_aiohttp()
@@ -257,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = TeleopConfig(
         task=args.task, condition=args.condition, repo_id=args.repo_id, root=args.root, seed=args.seed,
-        settings=S.DatasetSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
+        settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
         episode_length=args.episode_length, third_person_height=args.third_person_height,
         command="bavo-teleop " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv)))
     server = TeleopServer(None)

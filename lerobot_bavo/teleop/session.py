@@ -1,7 +1,7 @@
 """A teleoperation session: the human operator as an agent of `EpisodeRecorder`, input logs, replay,
 and the dataset writing shared with `bavo-collect`.
 
-- `HumanAgent` has the scripted expert's interface (`reset`, `act`, `phase`), so the recorder that
+- `HumanAgent` has the scripted expert's interface (`reset`, `act`, `recovering`), so the recorder that
   `bavo-collect` uses records a human episode with exactly the same columns and privileged state.
   Each `act` publishes the frame the operator sees, waits for the next 25 Hz tick, reads that
   tick's input, maps it to an action (`controls.TeleopController`) and logs the input.
@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.teleop.controls import TeleopController, TickInput
 
@@ -66,6 +67,11 @@ class HumanAgent:
         self.on_frame = on_frame
         self.inputs: list[dict] = []
 
+    @property
+    def recovering(self) -> bool:
+        """Whether the last action was a view-recovery move (the recorder's `annotation.occlusion_active`)."""
+        return self.phase == "recover_view"
+
     def reset(self) -> None:
         self.controller = TeleopController.from_env(self.env)
         self.phase = "start"
@@ -102,7 +108,7 @@ class HumanAgent:
 
 
 # ====================================================================== input logs
-def log_header(task: str, condition: str, seed: int, settings: S.DatasetSettings, episode_length: int | None) -> dict:
+def log_header(task: str, condition: str, seed: int, settings: ObservationSettings, episode_length: int | None) -> dict:
     return {"format": LOG_FORMAT, "version": LOG_VERSION, "task": task, "condition": condition, "seed": int(seed),
             "settings": settings.to_dict(), "episode_length": episode_length, "fps": S.FPS}
 
@@ -138,7 +144,7 @@ def replay_log(path: str | Path, recorder=None):
     from lerobot_bavo.datasets.recording import EpisodeRecorder
 
     header, ticks = read_log(path)
-    settings = S.DatasetSettings(**header["settings"])
+    settings = ObservationSettings(**header["settings"])
     own = recorder is None
     if own:
         recorder = EpisodeRecorder(header["task"], header["condition"], settings, header["episode_length"])
@@ -212,7 +218,7 @@ class HumanDataset:
     (`collect.stage_episode`) and commits it in its own LeRobot writer session (`Collector._commit`).
     """
 
-    def __init__(self, repo_id: str, root: Path | None, task: str, condition: str, settings: S.DatasetSettings,
+    def __init__(self, repo_id: str, root: Path | None, task: str, condition: str, settings: ObservationSettings,
                  episode_length: int | None, seed: int, command: str | None = None):
         from lerobot_bavo.datasets.collect import CollectConfig, Collector
 
@@ -304,7 +310,7 @@ class TeleopConfig:
     repo_id: str
     root: Path | None = None
     seed: int = 100_000
-    settings: S.DatasetSettings = field(default_factory=S.DatasetSettings)
+    settings: ObservationSettings = field(default_factory=ObservationSettings)
     episode_length: int | None = None
     third_person_height: int = 240
     jpeg_quality: int = 80
