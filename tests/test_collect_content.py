@@ -50,6 +50,8 @@ REFERENCE_COLUMNS: dict[str, str] = {
     "annotation.occlusion_target": "72de07267600717d",
     "annotation.visibility": "9a73ad44642fae69",
     "annotation.episode_seed": "89eb74c0c4f4077d",
+    # Added by issue 14 (who demonstrated: 0 = expert), all zeros; every other column and statistic is unchanged.
+    "annotation.source": "72de07267600717d",
     "timestamp": "aef64e45a1c0884e",
     "frame_index": "8651c6c887b96aea",
     "episode_index": "89eb74c0c4f4077d",
@@ -81,6 +83,7 @@ def dataset_digests(root: Path) -> tuple[dict[str, str], str]:
         values = [v for t in tables for v in t.column(name).to_pylist()]
         columns[name] = _column_digest(values)
     stats = json.loads((root / "meta" / "stats.json").read_text())
+    stats.pop("annotation.source", None)  # issue 14's added column: pinned above, kept out of the reference stats
 
     def rounded(x):
         if isinstance(x, dict):
