@@ -383,6 +383,9 @@ FAKE_XR = """
     }
     end() { this.dispatchEvent(new Event("end")); }
   }
+  // and a stand-in gamepad (standard mapping) for the page's Gamepad API polling
+  window.__pad = null;
+  navigator.getGamepads = () => [window.__pad];
   window.XRWebGLLayer = class {
     constructor() { this.framebuffer = null; }
     getViewport() { return { x: 0, y: 0, width: 300, height: 150 }; }
@@ -395,7 +398,7 @@ FAKE_XR = """
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's `chromium` (apt-get install chromium)")
-def test_page_webxr_path_drives_camera_and_arms_with_a_stand_in_device(tmp_path):
+def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
     playwright_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (pip install playwright)")
     proc, url = start_server(tmp_path / "human", "--image-height", "48", "--image-width", "64", "--n-points", "32",
                              "--episode-length", "200", "--third-person-height", "120")
@@ -426,7 +429,15 @@ def test_page_webxr_path_drives_camera_and_arms_with_a_stand_in_device(tmp_path)
                 page.keyboard.press("1")
                 hold(page, "d", 0.4)
                 time.sleep(0.3)
-                assert page.evaluate("window.bavo.lastHeader.ee.left[0]") - h["ee"]["left"][0] > 0.02
+                left = page.evaluate("window.bavo.lastHeader.ee.left")
+                assert left[0] - h["ee"]["left"][0] > 0.02
+                # gamepad: left stick pushed up (axis 1 = -1) moves the selected arm away from the operator (+y)
+                page.evaluate("window.__pad = {axes: [0, -1, 0, 0], buttons: Array.from({length: 17}, () => ({pressed: false}))}")
+                time.sleep(0.5)
+                page.evaluate("window.__pad = null")
+                time.sleep(0.3)
+                left2 = page.evaluate("window.bavo.lastHeader.ee.left")
+                assert left2[1] - left[1] > 0.03 and abs(left2[0] - left[0]) < 0.01, (left, left2)
             finally:
                 ctx.close()
     finally:
