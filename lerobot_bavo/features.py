@@ -49,7 +49,11 @@ ANN_ACTIVE = f"{ANNOTATION_PREFIX}.occlusion_active"
 ANN_TARGET = f"{ANNOTATION_PREFIX}.occlusion_target"
 ANN_VISIBILITY = f"{ANNOTATION_PREFIX}.visibility"
 ANN_SEED = f"{ANNOTATION_PREFIX}.episode_seed"
-ANNOTATION_KEYS = (ANN_PROGRESS, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET, ANN_VISIBILITY, ANN_SEED)
+ANN_OCCLUDER_POSE = f"{ANNOTATION_PREFIX}.occluder_pose"  # occluder centre + wxyz quaternion (bavo-view)
+ANNOTATION_KEYS = (ANN_PROGRESS, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET, ANN_VISIBILITY, ANN_SEED,
+                   ANN_OCCLUDER_POSE)
+# Optional in stored datasets: those collected before these columns existed lack them.
+OPTIONAL_ANNOTATION_KEYS = (ANN_OCCLUDER_POSE,)
 
 # ------------------------------------------------------------------ per-point / per-object channels
 POINT_CHANNELS = 6  # xyz + rgb

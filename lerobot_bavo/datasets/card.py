@@ -39,6 +39,7 @@ def _feature_rows(settings: dict) -> list[str]:
         f"| `{S.ANN_TARGET}` | (1,) | int64 | stage index s of the occluded target (`stage_targets[s]`), -1: none |",
         f"| `{S.ANN_VISIBILITY}` | (1,) | float32 | visible fraction V of the current target (privileged render), -1 under Clean |",
         f"| `{S.ANN_SEED}` | (1,) | int64 | episode seed (env layout, occlusion schedule, expert timing) |",
+        f"| `{S.ANN_OCCLUDER_POSE}` | (7,) | float32 | occluder panel centre (m, base frame) + wxyz quaternion; 0: none |",
     ]
 
 

@@ -28,6 +28,7 @@ Features (N = points per cloud, H x W = active image size; all per frame, 25 fps
 | annotation.occlusion_target | (1,) | int64 | stage index s of the event's target, i.e. the target is `task.stage_targets[s]`; -1 if none |
 | annotation.visibility | (1,) | float32 | visibility ratio V of the current target in [0, 1] (privileged render); -1 under Clean |
 | annotation.episode_seed | (1,) | int64 | the env / expert seed of the episode |
+| annotation.occluder_pose | (7,) | float32 | the occluder panel's centre (m, base frame) and wxyz quaternion at this frame; all 0 when there is none (Clean); absent from datasets collected before it existed |
 
 `annotation.*` columns are kept in the dataset but never reach a policy: LeRobot's
 `dataset_to_policy_features` types only `observation.*` and `action*` keys, and
@@ -46,6 +47,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     ANN_ACTIVE,
     ANN_EVENT,
     ANN_EVENT_START,
+    ANN_OCCLUDER_POSE,
     ANN_PROGRESS,
     ANN_SEED,
     ANN_TARGET,
@@ -57,6 +59,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     OBS_POINT_CLOUD,
     OBS_POINT_PIXELS,
     OBS_STATE,
+    OPTIONAL_ANNOTATION_KEYS,
     PIXEL_CHANNELS,
     POINT_CHANNELS,
     POSE_CHANNELS,
@@ -119,6 +122,7 @@ def build_features(settings: ObservationSettings, use_videos: bool = True, env_s
         ANN_TARGET: vec(1, "int64"),
         ANN_VISIBILITY: vec(1),
         ANN_SEED: vec(1, "int64"),
+        ANN_OCCLUDER_POSE: vec(POSE_CHANNELS),
     }
     return features
 
@@ -192,6 +196,8 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
         if key in TEACHER_KEYS and not require_teacher and key not in features:
             continue
         if key in ANNOTATION_KEYS and not require_annotations and key not in features:
+            continue
+        if key in OPTIONAL_ANNOTATION_KEYS and key not in features:
             continue
         if key not in features:
             raise ValueError(f"missing feature {key!r} (expected shape {shape}, dtype {dtype})")

@@ -167,8 +167,16 @@ class OcclusionEvent:
 
     def to_info(self) -> dict:
         return {"index": self.index, "step": self.step, "target": self.target,
-                "occluder_pos": self.occluder_pos.copy(), "visibility_at_start": self.visibility,
-                "fallback": self.fallback}
+                "occluder_pos": self.occluder_pos.copy(), "occluder_quat": self.occluder_quat(),
+                "visibility_at_start": self.visibility, "fallback": self.fallback}
+
+    def occluder_quat(self) -> np.ndarray:
+        """The panel's orientation as a wxyz unit quaternion (MuJoCo's convention, as its mocap body)."""
+        import mujoco
+
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(self.occluder_rot, dtype=np.float64).reshape(9))
+        return quat
 
 
 class OccluderPlacer:
