@@ -55,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     opt.add_argument("--relation-point", type=int, default=None, metavar="I",
                      help="also show the teacher's relation change dR of point I to every point as a heat map")
     opt.add_argument("--no-images", action="store_true", help="skip the RGB frames (smaller, faster recordings)")
+    opt.add_argument("--last-frame", type=int, default=None, metavar="K",
+                     help="show frames 0..K only (the viewer then opens at frame K)")
     return p
 
 
@@ -80,6 +82,8 @@ def _source_recording(args):
 
     root = dataset_root(args.root, args.repo_id, args.episode)
     ep = load_dataset_episode(root, args.episode, video=not args.no_images)
+    if args.last_frame is not None:
+        ep = ep.head(args.last_frame + 1)
     return ep, f"{Path(root).name}_episode{args.episode}"
 
 
@@ -94,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--episode must be >= 0, got {args.episode}")
     if args.rrd is not None and args.save is not None:
         parser.error("--rrd is already a recording: use --web or --spawn to view it")
+    if args.last_frame is not None and (args.last_frame < 0 or args.rrd is not None):
+        parser.error("--last-frame needs a dataset episode and a frame index >= 0")
     t0 = time.perf_counter()
     try:
         ep, name = _source_recording(args)

@@ -143,9 +143,10 @@ def teacher_query_entity(ep: EpisodeData, k: int):
     the teacher's answer 15 frames later (zf, in the camera frame of k + 15, clamped to the last frame)."""
     import rerun as rr
 
-    kf = min(k + FUTURE_OFFSET, ep.length - 1)
+    poses = ep.meta.get("future_camera_pose", ep.camera_pose)  # all frames' poses, also after a `head`
+    kf = min(k + FUTURE_OFFSET, len(poses) - 1)
     p0 = to_base_frame(ep.teacher_z0[k, :, :3].astype(np.float64), ep.camera_pose[k])
-    pf = to_base_frame(ep.teacher_zf[k, :, :3].astype(np.float64), ep.camera_pose[kf])
+    pf = to_base_frame(ep.teacher_zf[k, :, :3].astype(np.float64), poses[kf])
     return rr.Arrows3D(origins=p0, vectors=pf - p0, radii=0.0015, colors=(255, 0, 255))
 
 

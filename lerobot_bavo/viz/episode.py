@@ -70,6 +70,26 @@ class EpisodeData:
     def n_points(self) -> int:
         return int(self.point_cloud.shape[1])
 
+    def head(self, n: int) -> EpisodeData:
+        """The first n frames (a copy sharing the arrays' memory)."""
+        import dataclasses
+
+        n = max(1, min(int(n), self.length))
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray) and f.name != "K":
+                v = v[:n]
+            elif isinstance(v, list):
+                v = v[:n]
+            elif isinstance(v, dict) and f.name in ("action_chunk", "chunk_paths"):
+                v = {k: x for k, x in v.items() if k < n}
+            out[f.name] = v
+        # the teacher's answers at t + 15 need frames after n: keep the camera poses they are expressed in
+        if self.teacher_zf is not None and n < self.length:
+            out["meta"] = {**self.meta, "future_camera_pose": self.camera_pose}
+        return EpisodeData(**out)
+
 
 # ----------------------------------------------------------------------------- pure helpers
 def to_base_frame(points_c: np.ndarray, pose: np.ndarray) -> np.ndarray:

@@ -10,6 +10,9 @@ from lerobot_bavo.viz import entities as E
 from lerobot_bavo.viz.episode import EpisodeData
 
 APPLICATION_ID = "bavo_view"
+# The 3-D view's initial eye (base frame, m): in front of the table, to the right of the camera arm.
+EYE_POSITION = (0.55, -0.75, 0.65)
+EYE_TARGET = (0.0, -0.05, 0.15)
 
 
 def blueprint():
@@ -19,7 +22,9 @@ def blueprint():
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(
-                rrb.Spatial3DView(name="scene (base frame)", origin=E.WORLD),
+                rrb.Spatial3DView(name="scene (base frame)", origin=E.WORLD,
+                                  eye_controls=rrb.EyeControls3D(position=EYE_POSITION, look_target=EYE_TARGET,
+                                                                 eye_up=(0.0, 0.0, 1.0))),
                 rrb.Spatial2DView(name="active camera", origin=E.PINHOLE),
                 column_shares=[3, 2],
             ),
