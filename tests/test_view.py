@@ -173,6 +173,12 @@ def test_cli_arguments(dataset_root, tmp_path):
     with pytest.raises(SystemExit):
         main(["--root", str(dataset_root), "--relation-point", "32", "--save", str(tmp_path / "x.rrd")])
     assert main(["--root", str(dataset_root), "--episode", "5", "--save", str(tmp_path / "y.rrd")]) == 2
+    # --last-frame: frames 0..K only; the teacher's answers at K + 15 still use the camera pose of K + 15
+    assert main(["--root", str(dataset_root), "--last-frame", "4", "--teacher", "--no-images",
+                 "--save", str(tmp_path / "z.rrd")]) == 0
+    rrd = Rrd(tmp_path / "z.rrd")
+    assert sorted(rrd.frames[E.CLOUD]) == sorted(rrd.frames[E.TEACHER_QUERIES]) == [0, 1, 2, 3, 4]
+    assert E.RGB not in rrd.archetypes
 
 
 def test_lerobot_info_and_dataset_viz_work_on_a_bavo_dataset(dataset_root, tmp_path):

@@ -62,11 +62,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def dataset_root(root: Path | None, repo_id: str | None, episode: int) -> Path:
     """A local root holding the episode; a repo id's files are fetched with LeRobot (meta, one episode)."""
-    if repo_id is None:
+    if repo_id is None or (root is not None and (Path(root) / "meta" / "info.json").is_file()):
         return root
-    from lerobot.utils.constants import HF_LEROBOT_HOME
+    if root is None:
+        from lerobot.utils.constants import HF_LEROBOT_HOME
 
-    local = Path(root) if root is not None else HF_LEROBOT_HOME / repo_id
+        root = HF_LEROBOT_HOME / repo_id
+    local = Path(root)
     if not (local / "meta" / "info.json").is_file():
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
