@@ -131,6 +131,8 @@ def test_dataset_episode_rrd_entities_cloud_and_camera(dataset_root, dataset_rrd
         np.testing.assert_allclose(rrd.at(E.OCCLUDER, k, "Boxes3D:centers")[0], occ[:3], atol=1e-6)
         xyzw = np.asarray(rrd.at(E.OCCLUDER, k, "Boxes3D:quaternions")[0])
         assert abs(abs(np.dot(xyzw, np.r_[occ[4:7], occ[3]] / np.linalg.norm(occ[3:7]))) - 1) < 1e-5
+        # the teacher's queries start at the cloud's points (z0 is the camera-frame cloud, moved back to the base)
+        np.testing.assert_allclose(rrd.at(E.TEACHER_QUERIES, k, "Arrows3D:origins"), cloud[:, :3], atol=1e-4)
         v = float(item[S.ANN_VISIBILITY])
         assert rrd.at(E.VISIBILITY, k, "Scalars:scalars") == pytest.approx([v], abs=1e-6)
         assert rrd.at(E.PROGRESS, k, "Scalars:scalars") == [float(item[S.ANN_PROGRESS])]
