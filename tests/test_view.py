@@ -22,7 +22,7 @@ from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.viz import entities as E
 
 REPO = Path(__file__).resolve().parents[1]
-SETTINGS = S.DatasetSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 STEPS = 30
 REPO_ID = "tester/bavo_view"
 

@@ -172,11 +172,9 @@ class OcclusionEvent:
 
     def occluder_quat(self) -> np.ndarray:
         """The panel's orientation as a wxyz unit quaternion (MuJoCo's convention, as its mocap body)."""
-        import mujoco
+        from lerobot_bavo.sim.transforms import quat_from_matrix
 
-        quat = np.zeros(4)
-        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(self.occluder_rot, dtype=np.float64).reshape(9))
-        return quat
+        return quat_from_matrix(self.occluder_rot)
 
 
 class OccluderPlacer:
