@@ -14,12 +14,29 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_bavo.datasets import schema as S
-
-# Occluder panel half extents (thickness, width, height) in its own frame, metres; the same numbers
-# as `envs.occlusion.OCCLUDER_HALF_EXTENTS` (kept here so that viewing a dataset imports no simulator).
+# The keys and constants the viewer reads, as literals: `lerobot_bavo.features` (where they are defined)
+# imports LeRobot and so PyTorch, which alone takes longer than showing an episode. test_view.py checks
+# that every one equals its definition in `lerobot_bavo.features`, `datasets.schema`, `envs.occlusion`
+# and `envs.pointcloud`.
+OBS_IMAGE = "observation.images.active"
+OBS_POINT_CLOUD = "observation.point_cloud"
+OBS_CAMERA_POSE = "observation.camera_pose"
+ACTION = "action"
+TEACHER_Z0 = "observation.teacher.z0"
+TEACHER_ZF = "observation.teacher.zf"
+ANN_PROGRESS = "annotation.progress"
+ANN_EVENT = "annotation.occlusion_event"
+ANN_EVENT_START = "annotation.event_start"
+ANN_ACTIVE = "annotation.occlusion_active"
+ANN_TARGET = "annotation.occlusion_target"
+ANN_VISIBILITY = "annotation.visibility"
+ANN_OCCLUDER_POSE = "annotation.occluder_pose"
+POINT_CHANNELS = 6
+POSE_CHANNELS = 7
+# Occluder panel half extents (thickness, width, height) in its own frame, metres.
 OCCLUDER_HALF_EXTENTS = (0.003, 0.075, 0.075)
-FUTURE_OFFSET = S.N_FUTURE  # teacher zf answers for frame t + 15, in the camera frame of t + 15
+FUTURE_OFFSET = 15  # teacher zf answers for frame t + 15, in the camera frame of t + 15 (`schema.N_FUTURE`)
+DEFAULT_FOVY = 66.21  # the active camera's vertical field of view, degrees (`sim.constants.ACTIVE_CAMERA_FOVY`)
 
 
 @dataclass
@@ -92,6 +109,13 @@ class EpisodeData:
 
 
 # ----------------------------------------------------------------------------- pure helpers
+def intrinsics(fovy_deg: float, height: int, width: int) -> np.ndarray:
+    """Pinhole K of the active camera, as `envs.pointcloud.intrinsics_from_fovy`: f = 0.5 H / tan(fovy / 2),
+    principal point at the image centre in pixel-centre indices ((W - 1) / 2, (H - 1) / 2)."""
+    f = 0.5 * height / np.tan(np.deg2rad(fovy_deg) / 2.0)
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
 def to_base_frame(points_c: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """(N, 3) points in the camera frame -> base frame with T_B<-C (4, 4)."""
     return points_c @ pose[:3, :3].T + pose[:3, 3]
@@ -133,6 +157,13 @@ def diverging_colors(values: np.ndarray, limit: float | None = None) -> np.ndarr
 # ----------------------------------------------------------------------------- datasets
 class EpisodeNotFound(ValueError):
     pass
+
+
+def _n_points(features: dict) -> int:
+    if OBS_POINT_CLOUD not in features:
+        raise ValueError(f"missing feature {OBS_POINT_CLOUD!r}: not a BAVO dataset")
+    (width,) = features[OBS_POINT_CLOUD]["shape"]
+    return int(width) // POINT_CHANNELS
 
 
 def _episode_row(root: Path, episode: int) -> dict:
@@ -190,15 +221,15 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
         raise FileNotFoundError(f"{root} has no meta/info.json: not a LeRobot dataset")
     info = json.loads(info_path.read_text())
     features = info["features"]
-    n = S.infer_n_points(features)
+    n = _n_points(features)
     sidecar_path = root / "meta" / "bavo_collection.json"
     settings = json.loads(sidecar_path.read_text()).get("settings", {}) if sidecar_path.is_file() else {}
     row = _episode_row(root, episode)
 
     data_file = root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
-    wanted = ["frame_index", "timestamp", S.OBS_POINT_CLOUD, S.OBS_CAMERA_POSE, S.ACTION,
-              S.ANN_PROGRESS, S.ANN_VISIBILITY, S.ANN_EVENT, S.ANN_EVENT_START, S.ANN_ACTIVE, S.ANN_TARGET,
-              S.ANN_OCCLUDER_POSE, S.TEACHER_Z0, S.TEACHER_ZF]
+    wanted = ["frame_index", "timestamp", OBS_POINT_CLOUD, OBS_CAMERA_POSE, ACTION,
+              ANN_PROGRESS, ANN_VISIBILITY, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET,
+              ANN_OCCLUDER_POSE, TEACHER_Z0, TEACHER_ZF]
     columns = [c for c in wanted if c in features]
     table = pads.dataset(data_file, format="parquet").to_table(
         columns=columns, filter=pads.field("episode_index") == episode)
@@ -222,8 +253,8 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
     def take(x):
         return None if x is None else x[order]
 
-    cloud = take(col(S.OBS_POINT_CLOUD, n * S.POINT_CHANNELS)).reshape(T, n, S.POINT_CHANNELS).astype(np.float32)
-    pose = take(col(S.OBS_CAMERA_POSE, 16)).reshape(T, 4, 4).astype(np.float64)
+    cloud = take(col(OBS_POINT_CLOUD, n * POINT_CHANNELS)).reshape(T, n, POINT_CHANNELS).astype(np.float32)
+    pose = take(col(OBS_CAMERA_POSE, 16)).reshape(T, 4, 4).astype(np.float64)
     if settings.get("point_frame", "base") == "camera":
         cloud = cloud.copy()
         for t in range(T):
@@ -233,50 +264,48 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
         x = take(col(key, 1))
         return None if x is None else x[:, 0].astype(dtype)
 
-    progress = scalar(S.ANN_PROGRESS, np.int64)
-    target_stage = scalar(S.ANN_TARGET, np.int64)
+    progress = scalar(ANN_PROGRESS, np.int64)
+    target_stage = scalar(ANN_TARGET, np.int64)
     targets = settings.get("stage_targets")
     occlusion_target = None
     if target_stage is not None:
         occlusion_target = [None if s < 0 else (targets[s] if targets and s < len(targets) else f"stage {s}")
                             for s in target_stage]
-    z0 = take(col(S.TEACHER_Z0, None if S.TEACHER_Z0 not in features else features[S.TEACHER_Z0]["shape"][0]))
-    zf = take(col(S.TEACHER_ZF, None if S.TEACHER_ZF not in features else features[S.TEACHER_ZF]["shape"][0]))
+    z0 = take(col(TEACHER_Z0, None if TEACHER_Z0 not in features else features[TEACHER_Z0]["shape"][0]))
+    zf = take(col(TEACHER_ZF, None if TEACHER_ZF not in features else features[TEACHER_ZF]["shape"][0]))
 
     H, W = settings.get("image_height"), settings.get("image_width")
     rgb = None
-    if S.OBS_IMAGE in features:
-        H, W = features[S.OBS_IMAGE]["shape"][:2]
-        if video and features[S.OBS_IMAGE]["dtype"] == "video":
-            key = S.OBS_IMAGE
+    if OBS_IMAGE in features:
+        H, W = features[OBS_IMAGE]["shape"][:2]
+        if video and features[OBS_IMAGE]["dtype"] == "video":
+            key = OBS_IMAGE
             vpath = root / info["video_path"].format(video_key=key, chunk_index=row[f"videos/{key}/chunk_index"],
                                                      file_index=row[f"videos/{key}/file_index"])
             rgb = _decode_segment(vpath, float(row[f"videos/{key}/from_timestamp"]),
                                   float(row[f"videos/{key}/to_timestamp"]), float(info["fps"]), T)
     if H is None:
         H, W = 240, 320
-    from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
-
-    fovy = float(settings.get("fovy", 66.21))
+    fovy = float(settings.get("fovy", DEFAULT_FOVY))
     return EpisodeData(
         frame_index=frame_index,
         timestamp=take(col("timestamp")).astype(np.float64),
         point_cloud=cloud,
         camera_pose=pose,
-        K=intrinsics_from_fovy(fovy, int(H), int(W)),
+        K=intrinsics(fovy, int(H), int(W)),
         image_size=(int(H), int(W)),
         rgb=rgb,
         progress=progress,
         milestones=None if progress is None else milestones_from_progress(progress),
-        visibility=scalar(S.ANN_VISIBILITY, np.float32),
-        occlusion_event=scalar(S.ANN_EVENT, np.int64),
-        event_start=None if (x := scalar(S.ANN_EVENT_START, np.float32)) is None else x > 0.5,
-        occlusion_active=None if (x := scalar(S.ANN_ACTIVE, np.float32)) is None else x > 0.5,
-        occluder_pose=take(col(S.ANN_OCCLUDER_POSE, 7)),
+        visibility=scalar(ANN_VISIBILITY, np.float32),
+        occlusion_event=scalar(ANN_EVENT, np.int64),
+        event_start=None if (x := scalar(ANN_EVENT_START, np.float32)) is None else x > 0.5,
+        occlusion_active=None if (x := scalar(ANN_ACTIVE, np.float32)) is None else x > 0.5,
+        occluder_pose=take(col(ANN_OCCLUDER_POSE, 7)),
         occlusion_target=occlusion_target,
         teacher_z0=None if z0 is None else z0.reshape(T, n, -1).astype(np.float32),
         teacher_zf=None if zf is None else zf.reshape(T, n, -1).astype(np.float32),
-        action=take(col(S.ACTION, features[S.ACTION]["shape"][0])) if S.ACTION in features else None,
+        action=take(col(ACTION, features[ACTION]["shape"][0])) if ACTION in features else None,
         name=f"{root.name} episode {episode}",
         meta={"source": "dataset", "root": str(root), "episode_index": int(episode), "fps": float(info["fps"]),
               "task": settings.get("task"), "condition": settings.get("condition"),

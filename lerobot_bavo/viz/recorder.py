@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_bavo.viz.episode import EpisodeData, to_base_frame
+from lerobot_bavo.viz.episode import EpisodeData, intrinsics, to_base_frame
 
 
 class RolloutRecorder:
@@ -22,13 +22,11 @@ class RolloutRecorder:
     """
 
     def __init__(self, env, name: str = "episode"):
-        from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
-
         s = env.obs_settings
         self.env = env
         self.name = name
         self.point_frame = s.point_frame
-        self.K = intrinsics_from_fovy(s.fovy, s.image_height, s.image_width)
+        self.K = intrinsics(s.fovy, s.image_height, s.image_width)
         self.image_size = (s.image_height, s.image_width)
         self.fps = float(env.metadata.get("render_fps", 25))
         self.rows: dict[str, list] = {k: [] for k in (
