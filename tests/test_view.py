@@ -142,6 +142,30 @@ def test_dataset_episode_rrd_entities_cloud_and_camera(dataset_root, dataset_rrd
     assert list(res[0]) == [SETTINGS.image_width, SETTINGS.image_height]
 
 
+def test_a_dataset_without_occluder_poses_is_continued_and_viewed(dataset_root, tmp_path):
+    """Datasets collected before `annotation.occluder_pose` existed: `bavo-collect` continues them without the
+    column, and `bavo-view` shows them without the occluder box."""
+    import shutil
+
+    from lerobot.datasets.dataset_tools import remove_feature
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_bavo.datasets.collect import CollectConfig, collect
+    from lerobot_bavo.viz.cli import main
+
+    old = tmp_path / "old"
+    remove_feature(LeRobotDataset(REPO_ID, root=dataset_root), [S.ANN_OCCLUDER_POSE], output_dir=old, repo_id=REPO_ID)
+    shutil.copy(dataset_root / "meta" / "bavo_collection.json", old / "meta" / "bavo_collection.json")
+    cfg = CollectConfig(task="cube_handoff", condition="stage", episodes=3, repo_id=REPO_ID, root=old, workers=0,
+                        commit_every=1, settings=SETTINGS, episode_length=STEPS, keep_failures=True, progress=False)
+    assert collect(cfg)["episodes"] == 3
+    ds = LeRobotDataset(REPO_ID, root=old)
+    assert ds.meta.total_episodes == 3 and S.ANN_OCCLUDER_POSE not in ds.meta.features
+    assert main(["--root", str(old), "--episode", "2", "--save", str(tmp_path / "old.rrd"), "--no-images"]) == 0
+    rrd = Rrd(tmp_path / "old.rrd")
+    assert E.OCCLUDER not in rrd.archetypes and sorted(rrd.frames[E.CLOUD]) == list(range(STEPS))
+
+
 def test_viewer_constants_equal_their_definitions():
     """The viewer keeps literal copies of the keys it reads (importing them would import PyTorch): the same."""
     from lerobot_bavo import features as F
