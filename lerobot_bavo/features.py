@@ -50,10 +50,13 @@ ANN_TARGET = f"{ANNOTATION_PREFIX}.occlusion_target"
 ANN_VISIBILITY = f"{ANNOTATION_PREFIX}.visibility"
 ANN_SEED = f"{ANNOTATION_PREFIX}.episode_seed"
 # Who demonstrated an episode: the value is the index in SOURCES (bavo-collect's expert 0, bavo-teleop's human 1).
-# Not in ANNOTATION_KEYS: datasets collected before it existed lack it and stay valid.
 ANN_SOURCE = f"{ANNOTATION_PREFIX}.source"
 SOURCES = ("expert", "human")
-ANNOTATION_KEYS = (ANN_PROGRESS, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET, ANN_VISIBILITY, ANN_SEED)
+ANN_OCCLUDER_POSE = f"{ANNOTATION_PREFIX}.occluder_pose"  # occluder centre + wxyz quaternion (bavo-view)
+ANNOTATION_KEYS = (ANN_PROGRESS, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET, ANN_VISIBILITY, ANN_SEED,
+                   ANN_OCCLUDER_POSE, ANN_SOURCE)
+# Optional in stored datasets: those collected before these columns existed lack them and stay valid.
+OPTIONAL_ANNOTATION_KEYS = (ANN_OCCLUDER_POSE, ANN_SOURCE)
 
 # ------------------------------------------------------------------ per-point / per-object channels
 POINT_CHANNELS = 6  # xyz + rgb

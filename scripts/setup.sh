@@ -47,6 +47,18 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1'; then
     fi
 fi
 
+# LeRobot's video decoding (torchcodec) loads the system FFmpeg libraries: without them every LeRobot CLI
+# prints a long libtorchcodec traceback and `lerobot-info` fails (OSError: libavutil.so.*).
+if ! ldconfig -p 2>/dev/null | grep -q 'libavutil.so'; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "[setup] installing ffmpeg (FFmpeg libraries for LeRobot's torchcodec video decoding)"
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq ffmpeg
+    else
+        echo "warning: FFmpeg libraries not found; install the Debian package ffmpeg (LeRobot's CLIs need it" \
+             "to decode videos, and print a torchcodec traceback without it)." >&2
+    fi
+fi
+
 stamp=.venv/.bavo-install-stamp
 want=$(sha256sum pyproject.toml | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! .venv/bin/python -c 'import lerobot_bavo' 2>/dev/null; then

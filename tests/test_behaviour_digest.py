@@ -51,9 +51,9 @@ ROLLOUT_DIGESTS = {
     "dustpan_sweeping/random": "c56dbec4e6b62754e387cac7424c7b7406f06fd2e6fcfce5e84cd4f9a8a10d69",
 }
 RECORD_DIGESTS = {
-    "expert/random/70": "7a5c2d5d3d7b85d78fa2e845257d33aaa3dd52594233957a86ec87273dc6ea42",
-    "expert-frozen-camera/random/70": "c33a08e45b50d95c8ca4ae0c184d3a259bf2b27312605475a9f4c1e5c694a1b7",
-    "expert/stage/full": "3f487ed4b3bed571d24e4c4254d59885b7fe029be8dfd333cdfb912353bacbd7",
+    "expert/random/70": "237f049e6f4b9c18b5113f975fc5a64b4747a9f4b282852c011f39bbfd71c475",
+    "expert-frozen-camera/random/70": "b037e632b94744ebf8df9454f12b421351aea6ce431fb3fe294aef42f70d2846",
+    "expert/stage/full": "024330072d1eebddf1c0d2d151dfab434da2e753eec20c9c56bd84725cc3d3ec",
 }
 
 

@@ -52,13 +52,14 @@ REFERENCE_COLUMNS: dict[str, str] = {
     "annotation.episode_seed": "89eb74c0c4f4077d",
     # Added by issue 14 (who demonstrated: 0 = expert), all zeros; every other column and statistic is unchanged.
     "annotation.source": "72de07267600717d",
+    "annotation.occluder_pose": "2bb6524d9c87e1da",  # added for bavo-view (issue 13)
     "timestamp": "aef64e45a1c0884e",
     "frame_index": "8651c6c887b96aea",
     "episode_index": "89eb74c0c4f4077d",
     "index": "4722b24edb2ebf3b",
     "task_index": "72de07267600717d"
 }
-REFERENCE_STATS = 'f57bc2d0b49df093'
+REFERENCE_STATS = '1b58910e3774c9db'  # + annotation.occluder_pose's stats (issue 13)
 
 
 def _column_digest(values: list) -> str:

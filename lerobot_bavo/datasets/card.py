@@ -40,6 +40,7 @@ def _feature_rows(settings: dict) -> list[str]:
         f"| `{S.ANN_VISIBILITY}` | (1,) | float32 | visible fraction V of the current target (privileged render), -1 under Clean |",
         f"| `{S.ANN_SEED}` | (1,) | int64 | episode seed (env layout, occlusion schedule, expert timing) |",
         f"| `{S.ANN_SOURCE}` | (1,) | int64 | demonstrator: 0 = scripted expert, 1 = human (browser teleoperation) |",
+        f"| `{S.ANN_OCCLUDER_POSE}` | (7,) | float32 | occluder panel centre (m, base frame) + wxyz quaternion; 0: none |",
     ]
 
 

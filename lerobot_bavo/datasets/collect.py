@@ -438,7 +438,9 @@ class Collector:
             with _skip_noop_image_embedding():
                 for b in batch:
                     with np.load(self._staged_path(b["seed"], ".npz")) as z:
-                        cols = {_feature_key(k): z[k] for k in z.files}
+                        # a dataset begun before a newer optional annotation existed keeps its own features
+                        cols = {_feature_key(k): z[k] for k in z.files
+                                if _feature_key(k) in ds.features or _feature_key(k) not in S.OPTIONAL_ANNOTATION_KEYS}
                     n = cols[S.ACTION].shape[0]
                     if n != b["length"]:
                         raise CollectionError(f"staged episode seed {b['seed']} has {n} frames, its marker says {b['length']}")

@@ -30,7 +30,7 @@ class EpisodeRecord:
     float32; point_pixels (T, N, 2) int32; camera_pose (T, 4, 4) float64 (T_B<-C, OpenCV axes);
     environment_state (T, 7 K) float32 (object poses, privileged);
     progress, occlusion_event, occlusion_target (T,) int64; event_start, occlusion_active,
-    visibility (T,) float32 (see `schema` for their meaning).
+    visibility (T,) float32; occluder_pose (T, 7) float32 (see `schema` for their meaning).
     Privileged (teacher only): depth (T, H, W) float32 z-depth (m); body_seg (T, H, W) int16
     body id per pixel (-1: none); body_xpos (T, n_body, 3), body_xmat (T, n_body, 3, 3) float64;
     K (3, 3) intrinsics.
@@ -59,6 +59,7 @@ class EpisodeRecord:
     body_xpos: np.ndarray
     body_xmat: np.ndarray
     K: np.ndarray
+    occluder_pose: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
     recoveries: int = 0
     source: str = "expert"  # S.SOURCES: "expert" (scripted) or "human" (bavo-teleop)
@@ -116,7 +117,7 @@ class EpisodeRecorder:
         rows: dict[str, list] = {k: [] for k in (
             "state", "action", "rgb", "point_cloud", "point_pixels", "camera_pose", "environment_state", "progress", "occlusion_event",
             "event_start", "occlusion_active", "occlusion_target", "visibility", "depth", "body_seg", "body_xpos",
-            "body_xmat")}
+            "body_xmat", "occluder_pose")}
         target_stage = -1
         t_render = 0.0
         while True:
@@ -141,6 +142,7 @@ class EpisodeRecorder:
                 rows["event_start"].append(0.0)
                 rows["occlusion_target"].append(-1)
                 rows["visibility"].append(-1.0)
+                rows["occluder_pose"].append(np.zeros(7))
             else:
                 if occ["event_started"]:
                     target_stage = _target_stage(task, occ["target"], int(info["progress"]))
@@ -149,6 +151,7 @@ class EpisodeRecorder:
                 rows["occlusion_target"].append(target_stage)
                 vis = occ["visibility"]
                 rows["visibility"].append(-1.0 if vis is None else float(vis))
+                rows["occluder_pose"].append(np.concatenate([occ["event"]["occluder_pos"], occ["event"]["occluder_quat"]]))
             # a_t
             action = np.asarray(expert.act(obs, info), dtype=np.float32)
             rows["action"].append(action)
@@ -170,6 +173,7 @@ class EpisodeRecorder:
             occlusion_active=arrays["occlusion_active"].astype(np.float32),
             occlusion_target=arrays["occlusion_target"].astype(np.int64),
             visibility=arrays["visibility"].astype(np.float32),
+            occluder_pose=arrays["occluder_pose"].astype(np.float32),
             depth=arrays["depth"], body_seg=arrays["body_seg"], body_xpos=arrays["body_xpos"],
             body_xmat=arrays["body_xmat"], K=self.K.copy(),
             timings={"episode_s": wall, "segmentation_s": t_render},
@@ -212,4 +216,6 @@ def episode_frames(record: EpisodeRecord, targets: dict[str, np.ndarray]) -> dic
         S.ANN_SEED: np.full((T, 1), record.seed, dtype=np.int64),
         S.ANN_SOURCE: np.full((T, 1), S.SOURCES.index(record.source), dtype=np.int64),
     }
+    if record.occluder_pose is not None:
+        col[S.ANN_OCCLUDER_POSE] = record.occluder_pose.reshape(T, S.POSE_CHANNELS).astype(np.float32)
     return col

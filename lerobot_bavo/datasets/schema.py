@@ -29,6 +29,7 @@ Features (N = points per cloud, H x W = active image size; all per frame, 25 fps
 | annotation.visibility | (1,) | float32 | visibility ratio V of the current target in [0, 1] (privileged render); -1 under Clean |
 | annotation.episode_seed | (1,) | int64 | the env / expert seed of the episode |
 | annotation.source | (1,) | int64 | who demonstrated the episode: 0 = scripted expert (`bavo-collect`), 1 = human (`bavo-teleop`); absent from datasets collected before it existed |
+| annotation.occluder_pose | (7,) | float32 | the occluder panel's centre (m, base frame) and wxyz quaternion at this frame; all 0 when there is none (Clean); absent from datasets collected before it existed |
 
 `annotation.*` columns are kept in the dataset but never reach a policy: LeRobot's
 `dataset_to_policy_features` types only `observation.*` and `action*` keys, and
@@ -47,6 +48,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     ANN_ACTIVE,
     ANN_EVENT,
     ANN_EVENT_START,
+    ANN_OCCLUDER_POSE,
     ANN_PROGRESS,
     ANN_SEED,
     ANN_SOURCE,
@@ -59,6 +61,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     OBS_POINT_CLOUD,
     OBS_POINT_PIXELS,
     OBS_STATE,
+    OPTIONAL_ANNOTATION_KEYS,
     PIXEL_CHANNELS,
     POINT_CHANNELS,
     POSE_CHANNELS,
@@ -123,6 +126,7 @@ def build_features(settings: ObservationSettings, use_videos: bool = True, env_s
         ANN_VISIBILITY: vec(1),
         ANN_SEED: vec(1, "int64"),
         ANN_SOURCE: vec(1, "int64"),
+        ANN_OCCLUDER_POSE: vec(POSE_CHANNELS),
     }
     return features
 
@@ -197,7 +201,7 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
             continue
         if key in ANNOTATION_KEYS and not require_annotations and key not in features:
             continue
-        if key == ANN_SOURCE and key not in features:  # datasets collected before the column existed
+        if key in OPTIONAL_ANNOTATION_KEYS and key not in features:
             continue
         if key not in features:
             raise ValueError(f"missing feature {key!r} (expected shape {shape}, dtype {dtype})")

@@ -167,8 +167,14 @@ class OcclusionEvent:
 
     def to_info(self) -> dict:
         return {"index": self.index, "step": self.step, "target": self.target,
-                "occluder_pos": self.occluder_pos.copy(), "visibility_at_start": self.visibility,
-                "fallback": self.fallback}
+                "occluder_pos": self.occluder_pos.copy(), "occluder_quat": self.occluder_quat(),
+                "visibility_at_start": self.visibility, "fallback": self.fallback}
+
+    def occluder_quat(self) -> np.ndarray:
+        """The panel's orientation as a wxyz unit quaternion (MuJoCo's convention, as its mocap body)."""
+        from lerobot_bavo.sim.transforms import quat_from_matrix
+
+        return quat_from_matrix(self.occluder_rot)
 
 
 class OccluderPlacer:

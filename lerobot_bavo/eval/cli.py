@@ -7,6 +7,10 @@ Writes, under --output-dir:
   results.md     the same as a Markdown table, with macro averages over tasks per condition;
   episodes.jsonl one line per finished episode (the resume log);
   videos/        the first --videos episodes of every cell, occlusion events marked in red.
+With --rerun DIR, also one rerun recording per episode run, DIR/<task>_<condition>_seed<seed>.rrd (open it
+with `bavo-view --rrd FILE`; `--rerun <output-dir>/videos` puts them next to the videos): the point cloud,
+camera, RGB, occluder, visibility, progress, milestones and the policy's predicted action chunks, all
+from the rollout's own observations and info.
 
 Resumable: finished episodes (and so finished cells) found in --output-dir are kept, and only
 missing ones run; the run is keyed on a digest of the checkpoint's files (not its path: a moved
@@ -67,8 +71,9 @@ def _run_job(job: dict) -> dict:
         _CACHE[key] = (env, make_agent(job["policy"], env, trust_remote_code=job.get("trust_remote_code", False)))
     env, agent = _CACHE[key]
     video = Path(job["video"]) if job.get("video") else None
+    rerun = Path(job["rerun"]) if job.get("rerun") else None
     t0 = time.perf_counter()
-    record = run_episode(env, agent, job["seed"], video_path=video)
+    record = run_episode(env, agent, job["seed"], video_path=video, rerun_path=rerun)
     record["wall_s"] = round(time.perf_counter() - t0, 2)
     record["task"], record["condition"] = job["task"], job["condition"]
     if job.get("checkpoint_sha256"):
@@ -192,8 +197,9 @@ def append_record(log, record: dict) -> None:
 
 def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
              output_dir: Path, workers: int = 1, videos: int = 1, trust_remote_code: bool = False,
-             point_frame: str | None = None) -> dict:
-    """Run (or resume) the evaluation and write results.json / results.md; returns the results."""
+             point_frame: str | None = None, rerun_dir: Path | None = None) -> dict:
+    """Run (or resume) the evaluation and write results.json / results.md; returns the results.
+    `rerun_dir`: also write a rerun recording of every episode run there (`lerobot_bavo.viz`)."""
     from tqdm import tqdm
 
     from lerobot_bavo.checkpoints import CheckpointMismatchError, check_processor_steps, checkpoint_digest
@@ -239,13 +245,13 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
         raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
     try:
         return _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed,
-                                output_dir, workers, videos, trust_remote_code, tqdm)
+                                output_dir, workers, videos, trust_remote_code, tqdm, rerun_dir)
     finally:
         lock.close()
 
 
 def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed, output_dir, workers,
-                     videos, trust_remote_code, tqdm) -> dict:
+                     videos, trust_remote_code, tqdm, rerun_dir=None) -> dict:
     log_path = output_dir / "episodes.jsonl"
     settings_path = output_dir / "run.json"
     if settings_path.exists():
@@ -273,7 +279,8 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
                 if (task, cond, s) in done:
                     continue
                 video = str(output_dir / "videos" / f"{task}_{cond}_seed{s}.mp4") if i < videos else None
-                jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video,
+                rerun = str(Path(rerun_dir) / f"{task}_{cond}_seed{s}.rrd") if rerun_dir is not None else None
+                jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video, "rerun": rerun,
                              "trust_remote_code": trust_remote_code, "env_kwargs": env_kwargs,
                              "checkpoint_sha256": digest})
     if done:
@@ -330,6 +337,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--output-dir", type=Path, required=True, help="where results and videos go")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
     parser.add_argument("--videos", type=int, default=1, help="episodes recorded per cell (default 1)")
+    parser.add_argument("--rerun", type=Path, default=None, metavar="DIR",
+                        help="also write one rerun recording (.rrd) per episode run into DIR (view with bavo-view --rrd)")
     parser.add_argument("--trust-remote-code", action="store_true",
                         help="load processor steps and policy types that are neither LeRobot's audited ones nor "
                              "lerobot_bavo's (they run arbitrary code when loaded: only for checkpoints you trust)")
@@ -345,7 +354,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
                  args.output_dir, workers=args.workers, videos=args.videos, trust_remote_code=args.trust_remote_code,
-                 point_frame=args.point_frame)
+                 point_frame=args.point_frame, rerun_dir=args.rerun)
     except (CheckpointMismatchError, UntrustedCheckpointError) as e:  # raised while a worker loads the policy
         raise SystemExit(f"bavo-eval: {e}") from None
 

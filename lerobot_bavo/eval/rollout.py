@@ -86,6 +86,7 @@ class LeRobotPolicyAgent:
             preprocessor_overrides={"device_processor": {"device": device}},
         )
         self.task_description = env.task_description
+        self.last_chunk: np.ndarray | None = None  # (k, 21) joint targets predicted at the last act(), if any
 
     def reset(self) -> None:
         self.policy.reset()
@@ -99,9 +100,25 @@ class LeRobotPolicyAgent:
         batch["task"] = [self.task_description]
         batch = self.pre(batch)
         with self._torch.inference_mode():
+            queue = _action_queue(self.policy)
+            fresh = queue is not None and len(queue) == 0  # this call predicts a new chunk
             action = self.policy.select_action(batch)
+            queue = _action_queue(self.policy)
+            self.last_chunk = None
+            if fresh and queue is not None:  # the chunk just predicted: this action and those queued after it
+                chunk = self._torch.stack([action.reshape(-1), *(a.reshape(-1) for a in queue)])
+                self.last_chunk = self.post(chunk).cpu().numpy().astype(np.float64)
         action = self.post(action)
         return action.squeeze(0).cpu().numpy().astype(np.float64)
+
+
+def _action_queue(policy):
+    """The policy's queue of actions still to execute from its last chunk (LeRobot's `_queues["action"]` or
+    ACT's `_action_queue`), or None."""
+    queues = getattr(policy, "_queues", None)
+    if isinstance(queues, dict) and "action" in queues:
+        return queues["action"]
+    return getattr(policy, "_action_queue", None)
 
 
 def env_kwargs_for_policy(policy: str) -> dict:
@@ -132,11 +149,18 @@ def mark_event(frame: np.ndarray, width: int = 6) -> np.ndarray:
 
 
 def run_episode(env, agent, seed: int, video_path: Path | None = None, video_every: int = 2,
-                mark_steps: int = 12) -> dict:
-    """Roll out one seeded episode; returns its record (and writes a video if asked)."""
+                mark_steps: int = 12, rerun_path: Path | None = None) -> dict:
+    """Roll out one seeded episode; returns its record (and writes a video, and a rerun recording of every
+    step built from the observations and `info` only (`lerobot_bavo.viz.recorder`), if asked)."""
     obs, info = env.reset(seed=seed)
     agent.reset()
     frames = []
+    recorder = None
+    if rerun_path is not None:
+        from lerobot_bavo.viz.recorder import RolloutRecorder
+
+        recorder = RolloutRecorder(env, name=Path(rerun_path).stem)
+    visibility = [_visibility(info)] if "occlusion" in info else None
     last_event_step = 0 if "occlusion" in info else None
     placements = [_event_record(info["occlusion"]["event"])] if "occlusion" in info else []
 
@@ -149,7 +173,12 @@ def run_episode(env, agent, seed: int, video_path: Path | None = None, video_eve
     if video_path is not None:
         grab()
     while True:
-        obs, reward, terminated, truncated, info = env.step(agent.act(obs, info))
+        action = agent.act(obs, info)
+        if recorder is not None:
+            recorder.add(obs, info, action, getattr(agent, "last_chunk", None))
+        obs, reward, terminated, truncated, info = env.step(action)
+        if visibility is not None:
+            visibility.append(_visibility(info))
         occ = info.get("occlusion")
         if occ is not None and occ["event_started"]:
             last_event_step = info["elapsed_steps"]
@@ -172,6 +201,11 @@ def run_episode(env, agent, seed: int, video_path: Path | None = None, video_eve
         record["triggers"] = [int(t) for t in info["occlusion"]["triggers"]]
         record["num_events"] = int(info["occlusion"]["num_events"])
         record["placements"] = placements
+        record["visibility"] = visibility  # V of the current target at every step 0..steps (-1: not measured)
+    if recorder is not None:
+        recorder.add(obs, info)
+        recorder.save(rerun_path)
+        record["rerun"] = str(rerun_path)
     if video_path is not None:
         import imageio.v2 as imageio
 
@@ -182,6 +216,13 @@ def run_episode(env, agent, seed: int, video_path: Path | None = None, video_eve
 
 
 def _event_record(event: dict) -> dict:
+    """An event's placement; the occluder stays at this pose (centre, wxyz quaternion) until the next event."""
     return {"index": int(event["index"]), "step": int(event["step"]), "target": event["target"],
             "visibility_at_start": float(event["visibility_at_start"]), "fallback": bool(event["fallback"]),
-            "occluder_pos": [float(x) for x in event["occluder_pos"]]}
+            "occluder_pos": [float(x) for x in event["occluder_pos"]],
+            "occluder_quat": [round(float(x), 6) for x in event["occluder_quat"]]}
+
+
+def _visibility(info: dict) -> float:
+    v = info["occlusion"]["visibility"]
+    return -1.0 if v is None else round(float(v), 4)
