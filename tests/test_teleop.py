@@ -222,7 +222,7 @@ def test_session_saves_discards_and_replays_bit_for_bit(tmp_path):
                                       np.stack([np.asarray(ds.hf_dataset[i][k]) for i in range(30)]))
 
     # an episode staged (saved) but not committed when the server died is committed on the next start
-    from lerobot_bavo.datasets.collect import stage_episode
+    from lerobot_bavo.datasets.staging import stage_episode
 
     staged = replay_log(log)[0]
     staged.seed = 9

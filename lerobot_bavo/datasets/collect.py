@@ -22,16 +22,19 @@ How it works:
   only after the record says they are committed. Finished episodes are never lost or duplicated.
 - At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`), the
   dataset card (README.md), and optionally `push_to_hub` (needs `huggingface-cli login`).
+
+Where each job lives: this module has the CLI, its config and the run (`Collector`, `SeedScheduler`);
+`staging.py` records and stages one episode (the worker side); `collection_record.py` is the record;
+`transaction.py` snapshots and rolls back a writer session; `lerobot_private.py` holds every use of
+LeRobot's private internals; `runtime/pool.py` is the worker pool `bavo-eval` uses too.
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
-import contextlib
 import json
 import logging
-import multiprocessing
 import os
 import shlex
 import shutil
@@ -43,16 +46,17 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.datasets.collection_record import CollectionRecord, PendingCommit
 from lerobot_bavo.datasets.hub import SIDECAR
+from lerobot_bavo.datasets.lerobot_private import abandon_writer, skip_noop_image_embedding
+from lerobot_bavo.datasets.staging import load_staged, run_job, seed_of, staged_path
+from lerobot_bavo.datasets.transaction import SnapshotMissing, WriterSessionSnapshot, remove_stray_dirs
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
+from lerobot_bavo.runtime.pool import WorkerPool
 
 logger = logging.getLogger("bavo-collect")
 
 STAGING = ".bavo_staging"
-RECORD_FORMAT = 1
-MANAGED_DIRS = ("data", "videos", os.path.join("meta", "episodes"))
-SNAPSHOT_FILES = (os.path.join("meta", "info.json"), os.path.join("meta", "stats.json"),
-                  os.path.join("meta", "tasks.parquet"))
 
 
 @dataclass
@@ -135,104 +139,61 @@ class CollectConfig:
         }
 
 
-# ================================================================== worker side
-_RECORDER = None
-_RECORDER_KEY = None
-
-
-def _init_worker(parent: int | None = None) -> None:
-    from lerobot_bavo.runtime import init_worker
-
-    init_worker(parent)
-
-
-def run_job(job: dict) -> dict:
-    """Record one seeded episode, compute its teacher targets and stage it; returns its summary.
-
-    Runs in a worker process (or in-process with --workers 0). Writes `<staging>/seed_<seed>.npz`
-    (dataset columns) when the episode is kept, then `<staging>/seed_<seed>.json` (the summary)
-    as the completion marker; both through atomic renames.
-    """
-    global _RECORDER, _RECORDER_KEY
-    from lerobot_bavo.datasets.recording import EpisodeRecorder
-
-    settings = ObservationSettings(**job["settings"])
-    key = (job["task"], job["condition"], settings, job["episode_length"])
-    if _RECORDER_KEY != key:
-        if _RECORDER is not None:
-            _RECORDER.close()
-        _RECORDER = EpisodeRecorder(job["task"], job["condition"], settings, job["episode_length"])
-        _RECORDER_KEY = key
-    cpu0 = time.process_time()
-    record = _RECORDER.record(int(job["seed"]))
-    return stage_episode(record, Path(job["staging"]), record.success or job["keep_failures"], cpu0)
-
-
-def stage_episode(record, staging: Path, kept: bool, cpu0: float | None = None) -> dict:
-    """Compute a recorded episode's teacher targets and stage it for `Collector._commit`; returns its summary.
-
-    Writes `<staging>/seed_<seed>.npz` (dataset columns) when `kept`, then `<staging>/seed_<seed>.json`
-    (the summary) as the completion marker; both through atomic renames. Also used by `bavo-teleop`.
-    """
-    from lerobot_bavo.datasets.recording import episode_frames
-    from lerobot_bavo.teacher.simulator import teacher_targets
-
-    cpu0 = time.process_time() if cpu0 is None else cpu0
-    seed = int(record.seed)
-    summary = {"seed": seed, "success": record.success, "kept": kept, "length": record.length,
-               "progress": record.final_progress, "recoveries": record.recoveries,
-               "episode_s": round(record.timings["episode_s"], 3), "source": record.source}
-    if kept:
-        t0 = time.perf_counter()
-        targets = teacher_targets(record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX)
-        summary["teacher_s"] = round(time.perf_counter() - t0, 3)
-        summary["valid_frames"] = int(targets["valid"].sum())
-        cols = episode_frames(record, targets)
-        t0 = time.perf_counter()
-        tmp = staging / f"seed_{seed:08d}.npz.tmp"
-        with open(tmp, "wb") as f:
-            np.savez(f, **{_npz_key(k): v for k, v in cols.items()})
-        os.replace(tmp, staging / f"seed_{seed:08d}.npz")
-        summary["stage_s"] = round(time.perf_counter() - t0, 3)
-    summary["cpu_s"] = round(time.process_time() - cpu0, 3)
-    _write_json_atomic(staging / f"seed_{seed:08d}.json", summary)
-    return summary
-
-
-def _npz_key(feature: str) -> str:
-    return feature.replace(".", "__")
-
-
-def _feature_key(npz_key: str) -> str:
-    return npz_key.replace("__", ".")
-
-
-def _write_json_atomic(path: Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
-
-
 # ================================================================== main side
 class CollectionError(RuntimeError):
     pass
 
 
-class _SerialExecutor:
-    """Runs jobs at submit time in this process (--workers 0)."""
+class SeedScheduler:
+    """Which seeds to attempt next, and the finished attempts in seed order.
 
-    def submit(self, fn, *args):
-        fut = cf.Future()
-        try:
-            fut.set_result(fn(*args))
-        except BaseException as e:  # noqa: BLE001 (re-raised by fut.result())
-            if isinstance(e, KeyboardInterrupt):
-                raise
-            fut.set_exception(e)
-        return fut
+    Attempts finish out of order (several workers); the dataset holds episodes in seed order. So a
+    finished attempt waits in `results` until every lower seed is resolved, and no more attempts are in
+    flight than could still be needed (finished-and-kept plus in-flight covers what is wanted), except
+    to fill a gap below a finished seed.
+    """
 
-    def shutdown(self, wait=True, cancel_futures=False):
-        pass
+    def __init__(self, next_seed: int, staged: dict[int, dict]):
+        self.next_seed = next_seed  # the first seed not yet resolved
+        self.results: dict[int, dict] = dict(staged)  # finished, not yet resolved
+        self.in_flight: dict[cf.Future, int] = {}
+
+    def resolved(self):
+        """Finished summaries in seed order, each removed as it is handed out (stop whenever you like)."""
+        while self.next_seed in self.results:
+            summary = self.results.pop(self.next_seed)
+            self.next_seed += 1
+            yield summary
+
+    def seeds_to_attempt(self, wanted: int, window: int) -> list[int]:
+        """Seeds to submit now: at most `window` in flight, and no more than `wanted` kept episodes need."""
+        seeds: list[int] = []
+        busy = set(self.in_flight.values())
+        ahead = sum(1 for r in self.results.values() if r["kept"])
+        seed = self.next_seed
+        while len(self.in_flight) + len(seeds) < window:
+            while seed in self.results or seed in busy:
+                seed += 1
+            gap = bool(self.results) and seed < max(self.results)  # staged results wait for this seed
+            if not gap and ahead + len(self.in_flight) + len(seeds) >= wanted:
+                break
+            seeds.append(seed)
+            seed += 1
+        return seeds
+
+    def submit(self, pool: WorkerPool, fn, job: dict) -> None:
+        self.in_flight[pool.submit(fn, job)] = job["seed"]
+
+    def wait(self) -> None:
+        """Block until at least one attempt in flight finishes; a worker's exception propagates here."""
+        if not self.in_flight:
+            if self.next_seed in self.results:
+                return
+            raise CollectionError("internal error: nothing in flight and nothing to resolve")
+        done, _ = cf.wait(list(self.in_flight), return_when=cf.FIRST_COMPLETED)
+        for fut in done:
+            seed = self.in_flight.pop(fut)
+            self.results[seed] = fut.result()
 
 
 class Collector:
@@ -243,22 +204,18 @@ class Collector:
         self.root = cfg.resolved_root()
         self.staging = self.root / STAGING
         self.settings = cfg.record_settings()
-        self.record: dict = {}
+        self.record: CollectionRecord | None = None
+        self.snapshot = WriterSessionSnapshot(self.root, self.staging / "snapshot")
         self._committing = False
 
-    # -------------------------------------------------------------- record (sidecar)
-    @property
-    def record_path(self) -> Path:
-        return self.root / SIDECAR
-
     def _save_record(self) -> None:
-        _write_json_atomic(self.record_path, self.record)
+        self.record.save(self.root)
 
     def _open(self) -> None:
         """Create the dataset, or reopen it: check settings, roll back a pending commit, check counts."""
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        from lerobot_bavo.datasets.hub import read_info, read_sidecar, read_stats
+        from lerobot_bavo.datasets.hub import read_info, read_stats
 
         info_path = self.root / "meta" / "info.json"
         if not info_path.exists():
@@ -274,7 +231,7 @@ class Collector:
                                        use_videos=self.cfg.use_videos)
             ds.finalize()
             del ds
-        record = read_sidecar(self.root)
+        record = CollectionRecord.load(self.root)
         info = read_info(self.root)
         read_stats(self.root, check_nan=False)  # LeRobot.resume would fail on it later with a bare JSONDecodeError
         if record is None:
@@ -282,11 +239,9 @@ class Collector:
                 raise CollectionError(
                     f"{self.root} holds a LeRobot dataset ({info['total_episodes']} episodes) that bavo-collect did not "
                     f"make (no {SIDECAR}); choose another --root")
-            record = {"format": RECORD_FORMAT, "repo_id": self.cfg.repo_id, "settings": self.settings,
-                      "episodes": [], "discarded": [], "next_seed": self.cfg.seed, "pending_commit": None,
-                      "runs": [], "complete": False}
+            record = CollectionRecord(repo_id=self.cfg.repo_id, settings=self.settings, next_seed=self.cfg.seed)
         else:
-            self._check_settings(record["settings"])
+            self._check_settings(record.settings)
         self.record = record
         S.check_features(info["features"], n_points=self.cfg.settings.n_points)
         expected_shape = (self.cfg.settings.image_height, self.cfg.settings.image_width, 3)
@@ -296,17 +251,17 @@ class Collector:
         self.staging.mkdir(parents=True, exist_ok=True)
         for tmp in self.staging.glob("*.tmp"):
             tmp.unlink()
-        if record.get("pending_commit"):
-            logger.warning("rolling back an interrupted commit of seeds %s", record["pending_commit"]["seeds"])
+        if record.pending_commit is not None:
+            logger.warning("rolling back an interrupted commit of seeds %s", record.pending_commit.seeds)
             self._rollback()
         else:
-            shutil.rmtree(self.staging / "snapshot", ignore_errors=True)
-        self._remove_stray_dirs()
+            self.snapshot.discard()
+        remove_stray_dirs(self.root, keep=(STAGING,))
         info = read_info(self.root)
-        if info["total_episodes"] != len(self.record["episodes"]):
+        if info["total_episodes"] != len(self.record.episodes):
             raise CollectionError(
                 f"{self.root}: meta/info.json has {info['total_episodes']} episodes but {SIDECAR} records "
-                f"{len(self.record['episodes'])}; the dataset was modified outside bavo-collect")
+                f"{len(self.record.episodes)}; the dataset was modified outside bavo-collect")
         self._save_record()
 
     def _check_settings(self, recorded: dict) -> None:
@@ -317,145 +272,105 @@ class Collector:
             raise CollectionError(f"{self.root} was collected with other settings ({text}); "
                                   "use the same arguments to continue it, or another --root")
 
-    # -------------------------------------------------------------- snapshot / rollback
-    def _managed_files(self) -> list[str]:
-        out = []
-        for d in MANAGED_DIRS:
-            base = self.root / d
-            if base.exists():
-                out += [str(p.relative_to(self.root)) for p in base.rglob("*") if p.is_file()]
-        return sorted(out)
-
-    def _snapshot(self) -> None:
-        snap = self.staging / "snapshot"
-        shutil.rmtree(snap, ignore_errors=True)
-        snap.mkdir(parents=True)
-        present = []
-        for rel in SNAPSHOT_FILES:
-            src = self.root / rel
-            if src.exists():
-                shutil.copy2(src, snap / Path(rel).name)
-                present.append(rel)
-        _write_json_atomic(snap / "files.json", {"files": self._managed_files(), "meta": present})
-
     def _rollback(self) -> None:
-        snap = self.staging / "snapshot"
-        if not (snap / "files.json").exists():
+        try:
+            self.snapshot.restore()
+        except SnapshotMissing as e:
             raise CollectionError(
-                f"{self.root}: an interrupted commit of seeds {self.record['pending_commit']['seeds']} cannot be rolled "
-                f"back because its snapshot ({snap}) is gone; start a new collection in another --root")
-        listing = json.loads((snap / "files.json").read_text())
-        keep = set(listing["files"])
-        for rel in self._managed_files():
-            if rel not in keep:
-                (self.root / rel).unlink()
-        for rel in SNAPSHOT_FILES:
-            dst = self.root / rel
-            if rel in listing["meta"]:
-                shutil.copy2(snap / Path(rel).name, dst)
-            elif dst.exists():
-                dst.unlink()
-        for d in MANAGED_DIRS:  # drop directories left empty
-            base = self.root / d
-            if base.exists():
-                for p in sorted(base.rglob("*"), key=lambda p: len(p.parts), reverse=True):
-                    if p.is_dir() and not any(p.iterdir()):
-                        p.rmdir()
-        self.record["pending_commit"] = None
+                f"{self.root}: an interrupted commit of seeds {self.record.pending_commit.seeds} cannot be rolled "
+                f"back because {e}; start a new collection in another --root") from None
+        self.record.pending_commit = None
         self._save_record()
-        shutil.rmtree(snap, ignore_errors=True)
-
-    def _remove_stray_dirs(self) -> None:
-        """LeRobot's temporary encoder / image folders left by a killed writer."""
-        for p in self.root.iterdir():
-            if p.is_dir() and p.name not in ("data", "videos", "meta", STAGING):
-                shutil.rmtree(p, ignore_errors=True)
 
     # -------------------------------------------------------------- staging
-    def _staged_path(self, seed: int, suffix: str) -> Path:
-        return self.staging / f"seed_{seed:08d}{suffix}"
-
     def _scan_staging(self, first_seed: int) -> dict[int, dict]:
+        """Finished attempts a killed run left staged (seed >= first_seed), to reuse instead of re-running."""
         found = {}
         for p in self.staging.glob("seed_*.json"):
-            seed = int(p.stem.split("_")[1])
+            seed = seed_of(p)
             if seed < first_seed:
                 self._drop_staged(seed)
                 continue
             summary = json.loads(p.read_text())
-            if summary.get("kept") and not self._staged_path(seed, ".npz").exists():
+            if summary.get("kept") and not staged_path(self.staging, seed, ".npz").exists():
                 p.unlink()  # marker without data: redo the episode
                 continue
             found[seed] = summary
         for p in self.staging.glob("seed_*.npz"):
-            seed = int(p.stem.split("_")[1])
-            if seed not in found:
+            if seed_of(p) not in found:
                 p.unlink()
         return found
 
     def _drop_staged(self, seed: int) -> None:
         for suffix in (".npz", ".json"):
-            self._staged_path(seed, suffix).unlink(missing_ok=True)
+            staged_path(self.staging, seed, suffix).unlink(missing_ok=True)
 
     # -------------------------------------------------------------- commit
-    def _commit(self, batch: list[dict], discards: list[dict], next_seed: int) -> None:
+    def _commit(self, batch: list[dict], discards: list[dict], next_seed: int, timings: dict | None = None) -> None:
         """Append `batch` (summaries of staged kept episodes, seed order) to the dataset."""
         t0 = time.perf_counter()
-        self._snapshot()
-        self.record["pending_commit"] = {"seeds": [b["seed"] for b in batch], "next_seed": next_seed}
+        self.snapshot.take()
+        self.record.pending_commit = PendingCommit([b["seed"] for b in batch], next_seed)
         self._save_record()
         self._committing = True
-        first_index = self._write_batch(batch)
+        first_index = self._write_batch(batch, {} if timings is None else timings)
         for i, b in enumerate(batch):
-            self.record["episodes"].append({"episode_index": first_index + i, "seed": b["seed"], "length": b["length"],
-                                            "recoveries": b.get("recoveries")})
-        self.record["discarded"].extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
-                                        for d in discards)
-        self.record["next_seed"] = next_seed
-        self.record["pending_commit"] = None
-        self.record["complete"] = False
+            self.record.episodes.append({"episode_index": first_index + i, "seed": b["seed"], "length": b["length"],
+                                         "recoveries": b.get("recoveries")})
+        self.record.discarded.extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
+                                     for d in discards)
+        self.record.next_seed = next_seed
+        self.record.pending_commit = None
+        self.record.complete = False
         self._save_record()
         self._committing = False
         for b in batch:
             self._drop_staged(b["seed"])
         for d in discards:
             self._drop_staged(d["seed"])
-        shutil.rmtree(self.staging / "snapshot", ignore_errors=True)
+        self.snapshot.discard()
         logger.info("committed %d episodes (seeds %s) in %.1f s", len(batch), [b["seed"] for b in batch],
                     time.perf_counter() - t0)
 
-    def _write_batch(self, batch: list[dict]) -> int:
-        """One LeRobot writer session: resume, add the staged episodes, finalize. Returns the first new index."""
+    def _write_batch(self, batch: list[dict], timings: dict) -> int:
+        """One LeRobot writer session: resume, add the staged episodes, finalize. Returns the first new index.
+
+        Appends to `timings["episode_write_s"]` the seconds each episode took (its add_frame calls and
+        save_episode) and to `timings["session_s"]` the session's open + finalize overhead."""
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+        t_session = time.perf_counter()
         max_len = max(b["length"] for b in batch)
         # The streaming encoder's queue must hold a whole episode: when it is full LeRobot drops frames.
         ds = LeRobotDataset.resume(self.cfg.repo_id, root=self.root, video_backend="pyav",
                                    streaming_encoding=self.cfg.use_videos, encoder_queue_maxsize=max_len + 16)
         first_index = ds.meta.total_episodes
         description = self.settings["task_description"]
+        episodes_s = 0.0
         try:
-            with _skip_noop_image_embedding():
+            with skip_noop_image_embedding():
                 for b in batch:
-                    with np.load(self._staged_path(b["seed"], ".npz")) as z:
-                        # a dataset begun before a newer optional annotation existed keeps its own features
-                        cols = {_feature_key(k): z[k] for k in z.files
-                                if _feature_key(k) in ds.features or _feature_key(k) not in S.OPTIONAL_ANNOTATION_KEYS}
+                    t0 = time.perf_counter()
+                    # a dataset begun before a newer optional annotation existed keeps its own features
+                    cols = {k: v for k, v in load_staged(self.staging, b["seed"]).items()
+                            if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
                     n = cols[S.ACTION].shape[0]
                     if n != b["length"]:
                         raise CollectionError(f"staged episode seed {b['seed']} has {n} frames, its marker says {b['length']}")
-                    if S.ANN_SOURCE not in ds.features:  # a dataset collected before the column existed
-                        cols.pop(S.ANN_SOURCE, None)
                     for t in range(n):
                         frame = {k: v[t] for k, v in cols.items()}
                         frame["task"] = description
                         ds.add_frame(frame)
                     ds.save_episode()
+                    dt = time.perf_counter() - t0
+                    episodes_s += dt
+                    timings.setdefault("episode_write_s", []).append(round(dt, 3))
             ds.finalize()
         except BaseException:
-            _abandon(ds)
+            abandon_writer(ds)
             raise
         self._verify_videos(first_index, batch)
+        timings.setdefault("session_s", []).append(round(time.perf_counter() - t_session - episodes_s, 3))
         return first_index
 
     def _verify_videos(self, first_index: int, batch: list[dict]) -> None:
@@ -502,70 +417,40 @@ class Collector:
         t_start = time.perf_counter()
         self._open()
         requested = cfg.episodes
-        committed = len(self.record["episodes"])
-        resolved_upto = int(self.record["next_seed"])
-        results = self._scan_staging(resolved_upto)
+        committed = len(self.record.episodes)
+        sched = SeedScheduler(self.record.next_seed, self._scan_staging(self.record.next_seed))
         run_stats = {"started": time.strftime("%Y-%m-%d %H:%M:%S"), "requested": requested,
                      "committed_before": committed, "workers": cfg.workers, "attempts": 0,
-                     "reused_staged": len(results)}
+                     "reused_staged": len(sched.results)}
+        timings: dict[str, list] = {}
         batch: list[dict] = []
         discards: list[dict] = []
         max_discards = int(cfg.max_discard_ratio * requested) + 10
         bar = _progress(total=requested, initial=committed, enabled=cfg.progress)
-        bar.set_postfix(discarded=len(self.record["discarded"]))
-        executor = None
-        in_flight: dict[cf.Future, int] = {}
+        bar.set_postfix(discarded=len(self.record.discarded))
+        pool = WorkerPool(cfg.workers) if committed < requested else None
         try:
-            if committed < requested:
-                executor = self._executor()
             while committed < requested:
-                # resolve finished attempts in seed order
-                while (resolved_upto in results and committed + len(batch) < requested
-                       and len(batch) < cfg.commit_every):
-                    summary = results.pop(resolved_upto)
-                    resolved_upto += 1
+                for summary in sched.resolved():  # finished attempts, in seed order
                     if summary["kept"]:
                         batch.append(summary)
                         bar.update(1)
                     else:
                         discards.append(summary)
-                        total_discards = len(self.record["discarded"]) + len(discards)
-                        bar.set_postfix(discarded=total_discards)
-                        if total_discards > max_discards:
-                            raise CollectionError(
-                                f"{total_discards} unsuccessful expert episodes for {committed + len(batch)} kept: the "
-                                f"expert for {cfg.task!r} under {cfg.condition!r} fails too often; aborting")
+                        self._check_discards(len(self.record.discarded) + len(discards), max_discards,
+                                             committed + len(batch), bar)
+                    if committed + len(batch) >= requested or len(batch) >= cfg.commit_every:
+                        break
                 if batch and (len(batch) >= cfg.commit_every or committed + len(batch) >= requested):
-                    self._commit(batch, discards, resolved_upto)
+                    self._commit(batch, discards, sched.next_seed, timings)
                     committed += len(batch)
                     batch, discards = [], []
                     continue
-                if committed >= requested:
-                    break
-                # keep the workers busy, without attempting more episodes than could be needed
-                window = max(1, 2 * cfg.workers)
-                while len(in_flight) < window:
-                    seed = resolved_upto
-                    busy = set(in_flight.values())
-                    while seed in results or seed in busy:
-                        seed += 1
-                    gap = bool(results) and seed < max(results)  # staged results wait for this seed
-                    ahead = sum(1 for r in results.values() if r["kept"])
-                    if not gap and committed + len(batch) + ahead + len(in_flight) >= requested:
-                        break
-                    job = {"task": cfg.task, "condition": cfg.condition, "settings": cfg.settings.to_dict(),
-                           "episode_length": cfg.episode_length, "keep_failures": cfg.keep_failures,
-                           "seed": seed, "staging": str(self.staging)}
-                    in_flight[executor.submit(run_job, job)] = seed
+                for seed in sched.seeds_to_attempt(wanted=requested - committed - len(batch),
+                                                   window=max(1, 2 * cfg.workers)):
+                    sched.submit(pool, run_job, self._job(seed))
                     run_stats["attempts"] += 1
-                if not in_flight:
-                    if resolved_upto in results:
-                        continue
-                    raise CollectionError("internal error: nothing in flight and nothing to resolve")
-                done, _ = cf.wait(list(in_flight), return_when=cf.FIRST_COMPLETED)
-                for fut in done:
-                    seed = in_flight.pop(fut)
-                    results[seed] = fut.result()  # a worker's exception propagates here
+                sched.wait()
         except BaseException:
             if self._committing:
                 logger.warning("interrupted during a commit: rolling it back")
@@ -574,17 +459,23 @@ class Collector:
             raise
         finally:
             bar.close()
-            if executor is not None:
-                executor.shutdown(wait=False, cancel_futures=True)
+            if pool is not None:
+                pool.shutdown(cancel=True, wait=False)
+        run_stats["timings"] = timings
         return self._finish(run_stats, time.perf_counter() - t_start)
 
-    def _executor(self):
-        if self.cfg.workers == 0:
-            return _SerialExecutor()
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-        os.environ.setdefault("OMP_NUM_THREADS", "1")
-        return cf.ProcessPoolExecutor(max_workers=self.cfg.workers, mp_context=multiprocessing.get_context("spawn"),
-                                      initializer=_init_worker, initargs=(os.getpid(),))
+    def _job(self, seed: int) -> dict:
+        cfg = self.cfg
+        return {"task": cfg.task, "condition": cfg.condition, "settings": cfg.settings.to_dict(),
+                "episode_length": cfg.episode_length, "keep_failures": cfg.keep_failures, "seed": seed,
+                "staging": str(self.staging)}
+
+    def _check_discards(self, total: int, limit: int, kept: int, bar) -> None:
+        bar.set_postfix(discarded=total)
+        if total > limit:
+            raise CollectionError(
+                f"{total} unsuccessful expert episodes for {kept} kept: the expert for {self.cfg.task!r} under "
+                f"{self.cfg.condition!r} fails too often; aborting")
 
     def _finish(self, run_stats: dict, wall: float) -> dict:
         from lerobot_bavo.datasets.card import write_card
@@ -593,20 +484,19 @@ class Collector:
         t0 = time.perf_counter()
         per_channel = retile_point_cloud_stats(self.root)
         run_stats.update(finished=time.strftime("%Y-%m-%d %H:%M:%S"), wall_s=round(wall, 1),
-                         committed_after=len(self.record["episodes"]))
-        self.record["runs"].append(run_stats)
-        self.record["complete"] = len(self.record["episodes"]) >= self.cfg.episodes
-        self.record["point_cloud_channel_stats"] = {k: np.asarray(v).tolist() for k, v in per_channel.items()
-                                                    if k in ("min", "max", "mean", "std")}
+                         committed_after=len(self.record.episodes))
+        self.record.runs.append(run_stats)
+        self.record.complete = len(self.record.episodes) >= self.cfg.episodes
+        self.record.extra["point_cloud_channel_stats"] = {k: np.asarray(v).tolist() for k, v in per_channel.items()
+                                                          if k in ("min", "max", "mean", "std")}
         if self.cfg.command:
-            self.record["command"] = self.cfg.command
+            self.record.extra["command"] = self.cfg.command
         self._save_record()
         shutil.rmtree(self.staging, ignore_errors=True)
         write_card(self.root, self.cfg.repo_id)
         summary = {
-            "root": str(self.root), "episodes": len(self.record["episodes"]),
-            "frames": sum(e["length"] for e in self.record["episodes"]),
-            "discarded": len(self.record["discarded"]), "attempts_this_run": run_stats["attempts"],
+            "root": str(self.root), "episodes": len(self.record.episodes), "frames": self.record.frames,
+            "discarded": len(self.record.discarded), "attempts_this_run": run_stats["attempts"],
             "new_this_run": run_stats["committed_after"] - run_stats["committed_before"], "wall_s": round(wall, 1),
             "finish_s": round(time.perf_counter() - t0, 1),
         }
@@ -622,53 +512,6 @@ class Collector:
                     "same command: nothing is recollected.") from e
             summary["pushed"] = self.cfg.repo_id
         return summary
-
-
-def _abandon(ds) -> None:
-    """Drop a LeRobot writer after an error without letting its finalizers write anything more.
-
-    The interrupted commit is rolled back from the snapshot; LeRobot's `__del__` safety nets
-    would otherwise flush buffered episode metadata into files the rollback deletes.
-    """
-    writer, meta = getattr(ds, "writer", None), getattr(ds, "meta", None)
-    try:
-        if writer is not None:
-            writer.cancel_pending_videos()
-            writer._pq_writer = None
-            writer._finalized = True
-        if meta is not None:
-            meta._metadata_buffer = []
-            meta._pq_writer = None
-            meta._finalized = True
-        ds._is_finalized = True
-    except Exception:  # best effort
-        pass
-
-
-@contextlib.contextmanager
-def _skip_noop_image_embedding():
-    """Skip LeRobot 0.6.1's per-row `embed_images` pass when no column holds embeddable images.
-
-    `DatasetWriter._save_episode_data` calls `io_utils.embed_images`, a row-by-row `datasets.map`
-    of `embed_table_storage`, on every episode. With images stored as video no column needs
-    embedding, so that pass returns the table unchanged, yet it costs ~13 ms per frame (about
-    half of the writer's time). This shim returns the dataset as is in exactly that case.
-    """
-    import lerobot.datasets.dataset_writer as writer_mod
-    from datasets.features.features import require_storage_embed
-
-    original = writer_mod.embed_images
-
-    def embed_images(dataset):
-        if any(require_storage_embed(f) for f in dataset.features.values()):
-            return original(dataset)
-        return dataset
-
-    writer_mod.embed_images = embed_images
-    try:
-        yield
-    finally:
-        writer_mod.embed_images = original
 
 
 def _progress(total: int, initial: int, enabled: bool):

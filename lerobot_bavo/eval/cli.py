@@ -41,19 +41,18 @@ import argparse
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+from lerobot_bavo.runtime.pool import ProcessCache, WorkerPool
 
 RESULTS_VERSION = 1
 
 
-def _worker_init(parent: int | None = None) -> None:
-    from lerobot_bavo.runtime import init_worker
-
-    init_worker(parent)
+def _close_env_agent(env_agent) -> None:
+    env_agent[0].close()
 
 
-_CACHE: dict = {}
+_ENV_AGENT = ProcessCache(close=_close_env_agent)
 
 
 def _run_job(job: dict) -> dict:
@@ -63,13 +62,12 @@ def _run_job(job: dict) -> dict:
 
     env_kwargs = job["env_kwargs"] if "env_kwargs" in job else env_kwargs_for_policy(job["policy"])
     key = (job["policy"], job["task"], job["condition"], tuple(sorted(env_kwargs.items())))
-    if key not in _CACHE:
-        for old in _CACHE.values():
-            old[0].close()
-        _CACHE.clear()
+
+    def build():
         env = BavoEnv(task=job["task"], condition=job["condition"], **env_kwargs)
-        _CACHE[key] = (env, make_agent(job["policy"], env, trust_remote_code=job.get("trust_remote_code", False)))
-    env, agent = _CACHE[key]
+        return env, make_agent(job["policy"], env, trust_remote_code=job.get("trust_remote_code", False))
+
+    env, agent = _ENV_AGENT.get(key, build)
     video = Path(job["video"]) if job.get("video") else None
     rerun = Path(job["rerun"]) if job.get("rerun") else None
     t0 = time.perf_counter()
@@ -287,23 +285,8 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
         print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
 
     with open(log_path, "ab", buffering=0) as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
-        if workers > 1 and jobs:
-            pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(os.getpid(),))
-            try:
-                for record in pool.map(_run_job, jobs):
-                    done[(record["task"], record["condition"], record["seed"])] = record
-                    append_record(log, record)
-                    bar.update(1)
-            except BaseException:  # a failed write or a bad checkpoint: do not run the queued episodes first
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
-            pool.shutdown(wait=True)
-        else:
-            from lerobot_bavo.runtime import limit_threads
-
-            limit_threads()  # in this process: no exit-with-parent watch (see runtime.process.init_worker)
-            for job in jobs:
-                record = _run_job(job)
+        with WorkerPool(workers if workers > 1 and jobs else 0, start_method=None) as pool:
+            for record in pool.imap(_run_job, jobs):
                 done[(record["task"], record["condition"], record["seed"])] = record
                 append_record(log, record)
                 bar.update(1)

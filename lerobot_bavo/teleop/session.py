@@ -5,7 +5,7 @@ and the dataset writing shared with `bavo-collect`.
   `bavo-collect` uses records a human episode with exactly the same columns and privileged state.
   Each `act` publishes the frame the operator sees, waits for the next 25 Hz tick, reads that
   tick's input, maps it to an action (`controls.TeleopController`) and logs the input.
-- Saving goes through `collect.stage_episode` (teacher cache) and `Collector._commit` (one LeRobot
+- Saving goes through `staging.stage_episode` (teacher cache) and `Collector._commit` (one LeRobot
   writer session per episode, snapshot + rollback), so a saved episode survives any interruption
   of the server; the episode's input log is written to `meta/bavo_teleop/` first.
 - `replay_log` re-drives a logged episode without a browser: same env, same seed, same inputs,
@@ -215,7 +215,7 @@ class HumanDataset:
     Opening it takes `bavo-collect`'s lock on the folder, creates or checks the dataset (same schema,
     same settings check), rolls back a commit interrupted by a kill and commits episodes that were
     staged but not committed. `save()` writes the input log, stages the episode with its teacher cache
-    (`collect.stage_episode`) and commits it in its own LeRobot writer session (`Collector._commit`).
+    (`staging.stage_episode`) and commits it in its own LeRobot writer session (`Collector._commit`).
     """
 
     def __init__(self, repo_id: str, root: Path | None, task: str, condition: str, settings: ObservationSettings,
@@ -232,7 +232,7 @@ class HumanDataset:
         self._lock = self.collector._lock()
         try:
             self.collector._open()
-            staged = self.collector._scan_staging(int(self.collector.record["next_seed"]))
+            staged = self.collector._scan_staging(self.collector.record.next_seed)
             for seed_, summary in sorted(staged.items()):
                 if summary.get("kept"):  # saved, then the server was killed before the commit ended
                     logger.warning("committing episode seed %d, saved before an interruption", seed_)
@@ -242,19 +242,20 @@ class HumanDataset:
             raise
 
     @property
-    def record(self) -> dict:
+    def record(self):
+        """The dataset's `CollectionRecord`."""
         return self.collector.record
 
     @property
     def next_seed(self) -> int:
-        return int(self.collector.record["next_seed"])
+        return self.collector.record.next_seed
 
     def __len__(self) -> int:
-        return len(self.collector.record["episodes"])
+        return len(self.collector.record.episodes)
 
     def save(self, record, inputs: list[dict]) -> dict:
         """Append one recorded episode (and its input log); returns its entry in the collection record."""
-        from lerobot_bavo.datasets.collect import stage_episode
+        from lerobot_bavo.datasets.staging import stage_episode
 
         seed = int(record.seed)
         if seed < self.next_seed:
@@ -268,13 +269,13 @@ class HumanDataset:
         col = self.collector
         seed = int(summary["seed"])
         try:
-            col._commit([summary], [], max(int(col.record["next_seed"]), seed + 1))
+            col._commit([summary], [], max(col.record.next_seed, seed + 1))
         except BaseException:
             if col._committing:
                 col._rollback()
                 col._committing = False
             raise
-        entry = col.record["episodes"][-1]
+        entry = col.record.episodes[-1]
         entry.update(source="human", success=bool(summary["success"]), progress=int(summary["progress"]),
                      input_log=str(LOG_DIR / f"seed_{seed:08d}.jsonl"))
         col._save_record()

@@ -1,0 +1,96 @@
+"""Every use of LeRobot 0.6.1's private dataset internals, in one place.
+
+Why they are needed: `bavo-collect` appends episodes through LeRobot's public writer API
+(`LeRobotDataset.create / resume`, `add_frame`, `save_episode`, `finalize`). Two things that API
+does not offer:
+
+1. Abandoning a writer after an error. The collector rolls an interrupted commit back from its
+   snapshot; LeRobot's `__del__` safety nets would otherwise flush buffered episode metadata into
+   files the rollback just deleted. `abandon_writer` disarms them (`_pq_writer`, `_finalized`,
+   `_metadata_buffer`, `_is_finalized`).
+2. Skipping a no-op pass. `DatasetWriter._save_episode_data` calls `io_utils.embed_images`, a
+   row-by-row `datasets.map`, on every episode. With images stored as video no column needs
+   embedding and the pass returns the table unchanged, yet it costs ~13 ms per frame (half of the
+   writer's time). `skip_noop_image_embedding` replaces the module attribute in exactly that case.
+
+`check_private_api()` names every field and attribute used here; a test calls it, so an upgrade of
+LeRobot that renames one fails there with a message saying which, not deep inside a collection.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+# (what, where): the private names this module touches.
+WRITER_FIELDS = ("_pq_writer", "_finalized")
+META_FIELDS = ("_metadata_buffer", "_pq_writer", "_finalized")
+DATASET_FIELDS = ("_is_finalized",)
+WRITER_MODULE_ATTRIBUTES = ("embed_images",)
+
+
+class LeRobotInternalsChanged(RuntimeError):
+    """The installed LeRobot lacks a private name lerobot-bavo relies on."""
+
+
+def check_private_api(dataset=None) -> None:
+    """Raise `LeRobotInternalsChanged` naming each missing private name.
+
+    Module attributes are always checked; instance fields only when a `LeRobotDataset` writer session
+    (`dataset`, from `create` or `resume`) is given, since they exist only on instances.
+    """
+    import lerobot
+    import lerobot.datasets.dataset_writer as writer_mod
+
+    missing = [f"lerobot.datasets.dataset_writer.{a}" for a in WRITER_MODULE_ATTRIBUTES if not hasattr(writer_mod, a)]
+    if dataset is not None:
+        writer, meta = getattr(dataset, "writer", None), getattr(dataset, "meta", None)
+        if writer is None:
+            missing.append("LeRobotDataset.writer")
+        else:
+            missing += [f"DatasetWriter.{f}" for f in WRITER_FIELDS if not hasattr(writer, f)]
+            if not hasattr(writer, "cancel_pending_videos"):
+                missing.append("DatasetWriter.cancel_pending_videos")
+        missing += [f"LeRobotDatasetMetadata.{f}" for f in META_FIELDS if meta is None or not hasattr(meta, f)]
+        missing += [f"LeRobotDataset.{f}" for f in DATASET_FIELDS if not hasattr(dataset, f)]
+    if missing:
+        raise LeRobotInternalsChanged(
+            f"LeRobot {getattr(lerobot, '__version__', '?')} lacks {', '.join(missing)}, which "
+            "lerobot_bavo/datasets/lerobot_private.py uses (tested with lerobot 0.6.1); adapt that module")
+
+
+def abandon_writer(ds) -> None:
+    """Drop a LeRobot writer session after an error without letting its finalizers write anything more."""
+    writer, meta = getattr(ds, "writer", None), getattr(ds, "meta", None)
+    try:
+        if writer is not None:
+            writer.cancel_pending_videos()
+            writer._pq_writer = None
+            writer._finalized = True
+        if meta is not None:
+            meta._metadata_buffer = []
+            meta._pq_writer = None
+            meta._finalized = True
+        ds._is_finalized = True
+    except Exception:  # best effort: the rollback that follows restores the files anyway
+        pass
+
+
+@contextlib.contextmanager
+def skip_noop_image_embedding():
+    """Within the block, LeRobot's per-episode `embed_images` returns the table unchanged when no
+    column holds embeddable images (the only case it would be a no-op), and runs as usual otherwise."""
+    import lerobot.datasets.dataset_writer as writer_mod
+    from datasets.features.features import require_storage_embed
+
+    original = writer_mod.embed_images
+
+    def embed_images(dataset):
+        if any(require_storage_embed(f) for f in dataset.features.values()):
+            return original(dataset)
+        return dataset
+
+    writer_mod.embed_images = embed_images
+    try:
+        yield
+    finally:
+        writer_mod.embed_images = original

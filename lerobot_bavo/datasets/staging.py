@@ -1,0 +1,93 @@
+"""Record one seeded expert episode and stage it for the dataset writer (the worker side of `bavo-collect`).
+
+A job is a dict (task, condition, settings, episode_length, keep_failures, seed, staging folder);
+`run_job` runs in a pool worker (or in-process), records the episode with the scripted expert,
+computes its teacher targets and writes `seed_<seed>.npz` (the dataset columns, only when the episode
+is kept) and then `seed_<seed>.json` (its summary, the completion marker), both through atomic
+renames. The writer in the main process reads them back (`load_staged`) in seed order.
+
+The recorder (env, expert, renderers) is kept per worker process between jobs of the same settings
+(`runtime.pool.ProcessCache`): building it costs far more than a frame.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.datasets.collection_record import write_json_atomic
+from lerobot_bavo.features import ObservationSettings
+from lerobot_bavo.runtime.pool import ProcessCache
+
+_RECORDERS = ProcessCache(close=lambda recorder: recorder.close())
+
+
+def staged_path(staging: Path, seed: int, suffix: str) -> Path:
+    """`<staging>/seed_<seed>{.npz,.json}`: an episode's columns and its summary (the completion marker)."""
+    return Path(staging) / f"seed_{seed:08d}{suffix}"
+
+
+def seed_of(path: Path) -> int:
+    return int(path.stem.split("_")[1])
+
+
+def _npz_key(feature: str) -> str:
+    return feature.replace(".", "__")
+
+
+def _feature_key(npz_key: str) -> str:
+    return npz_key.replace("__", ".")
+
+
+def load_staged(staging: Path, seed: int) -> dict[str, np.ndarray]:
+    """The dataset columns of a staged episode, (T, ...) per feature."""
+    with np.load(staged_path(staging, seed, ".npz")) as z:
+        return {_feature_key(k): z[k] for k in z.files}
+
+
+def run_job(job: dict) -> dict:
+    """Record one seeded episode with the scripted expert and stage it (`stage_episode`); returns its summary."""
+    from lerobot_bavo.datasets.recording import EpisodeRecorder
+
+    settings = ObservationSettings(**job["settings"])
+    key = (job["task"], job["condition"], settings, job["episode_length"])
+    recorder = _RECORDERS.get(key, lambda: EpisodeRecorder(job["task"], job["condition"], settings,
+                                                            job["episode_length"]))
+    cpu0 = time.process_time()
+    record = recorder.record(int(job["seed"]))
+    return stage_episode(record, Path(job["staging"]), record.success or job["keep_failures"], cpu0)
+
+
+def stage_episode(record, staging: Path, kept: bool, cpu0: float | None = None) -> dict:
+    """Compute a recorded episode's teacher targets and stage it for `Collector._commit`; returns its summary.
+
+    Writes `<staging>/seed_<seed>.npz` (dataset columns) when `kept`, then `<staging>/seed_<seed>.json`
+    (the summary) as the completion marker; both through atomic renames. Also used by `bavo-teleop`.
+    """
+    from lerobot_bavo.datasets.recording import episode_frames
+    from lerobot_bavo.teacher.simulator import teacher_targets
+
+    cpu0 = time.process_time() if cpu0 is None else cpu0
+    seed = int(record.seed)
+    summary = {"seed": seed, "success": record.success, "kept": kept, "length": record.length,
+               "progress": record.final_progress, "recoveries": record.recoveries,
+               "episode_s": round(record.timings["episode_s"], 3), "source": record.source}
+    if kept:
+        t0 = time.perf_counter()
+        targets = teacher_targets(record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX)
+        summary["teacher_s"] = round(time.perf_counter() - t0, 3)
+        summary["valid_frames"] = int(targets["valid"].sum())
+        cols = episode_frames(record, targets)
+        t0 = time.perf_counter()
+        tmp = staged_path(staging, seed, ".npz.tmp")
+        with open(tmp, "wb") as f:
+            np.savez(f, **{_npz_key(k): v for k, v in cols.items()})
+        os.replace(tmp, staged_path(staging, seed, ".npz"))
+        summary["stage_s"] = round(time.perf_counter() - t0, 3)
+    summary["cpu_s"] = round(time.process_time() - cpu0, 3)
+    write_json_atomic(staged_path(staging, seed, ".json"), summary)
+    return summary
