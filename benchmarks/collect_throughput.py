@@ -11,6 +11,14 @@ Runs a small real collection (default: 6 Stage episodes of Cube Handoff, 2 worke
   machine inflate the wall times);
 - bytes per frame on disk with and without the video, and per parquet column.
 
+Per-episode cost against episode index (issue 11: the cost per episode must stay flat as the dataset
+grows): the main process's write time of each episode (its `add_frame` calls and `save_episode`,
+recorded by the collector in the run's `timings`), each writer session's open + finalize overhead,
+and the wall time between commits per episode; printed in groups of 10 with the ratio of the last 10
+to the first 10, and plotted with `--plot FILE.png`. A full 100-episode run:
+
+    python benchmarks/collect_throughput.py --episodes 100 --commit-every 10 --plot docs/results/collect_cost.png
+
     python benchmarks/collect_throughput.py [--episodes 6] [--workers 2] [--task cube_handoff] [--keep]
 """
 
@@ -57,6 +65,7 @@ def main() -> None:
     ap.add_argument("--commit-every", type=int, default=2)
     ap.add_argument("--root", type=Path, default=None, help="dataset folder (default: a temporary one, removed)")
     ap.add_argument("--keep", action="store_true", help="keep the temporary dataset")
+    ap.add_argument("--plot", type=Path, default=None, help="write the per-episode cost curve to this PNG")
     args = ap.parse_args()
 
     import datasets
@@ -73,9 +82,9 @@ def main() -> None:
     commits: list[dict] = []
     real_commit = C.Collector._commit
 
-    def timed_commit(self, batch, discards, next_seed):
+    def timed_commit(self, batch, discards, next_seed, timings=None):
         t0, c0 = time.perf_counter(), time.process_time()  # process time includes the encoder threads
-        real_commit(self, batch, discards, next_seed)
+        real_commit(self, batch, discards, next_seed, timings)
         commits.append({"t": time.perf_counter(), "seconds": time.perf_counter() - t0,
                         "cpu": time.process_time() - c0, "episodes": list(batch)})
 
@@ -133,10 +142,57 @@ def main() -> None:
                       round((data + meta) / frames / 1024, 2), "kb_per_frame_video": round(video / frames / 1024, 2),
                       "worker_s_per_episode": round(mean("episode_s"), 2), "write_s_per_episode": round(write_per_ep, 2),
                       "cpu_s_per_episode": round(cpu_per_ep, 2), "cpu_bound_100_min": round(100 / ideal_rate, 1)}))
+    per_episode_costs(root, commits, t0, args.plot)
     if tmp is not None and not args.keep:
         shutil.rmtree(tmp)
     elif tmp is not None:
         print(f"dataset kept at {root}")
+
+
+def per_episode_costs(root: Path, commits: list[dict], t0: float, plot: Path | None) -> None:
+    """Print (and plot) what each episode cost the writer, against its index in the dataset."""
+    import numpy as np
+
+    from lerobot_bavo.datasets.collection_record import CollectionRecord
+
+    timings = CollectionRecord.load(root).runs[-1].get("timings", {})
+    write = np.asarray(timings.get("episode_write_s", []), dtype=float)
+    sessions = np.asarray(timings.get("session_s", []), dtype=float)
+    # wall time from the previous commit's end to this one's, spread over its episodes (NaN for the first
+    # commit, whose interval holds the one-off start-up)
+    interval, t_prev = [], None
+    for c in commits:
+        value = float("nan") if t_prev is None else (c["t"] - t_prev) / len(c["episodes"])
+        interval += [value] * len(c["episodes"])
+        t_prev = c["t"]
+    interval = np.asarray(interval)
+    if len(write) < 2:
+        return
+    k = min(10, len(write) // 2)
+    print(f"\nper-episode cost against episode index (groups of {k}; seconds):")
+    print(f"  {'episodes':>10} {'write':>8} {'wall/episode':>13}")
+    for i in range(0, len(write), k):
+        print(f"  {i:>4}-{min(i + k, len(write)) - 1:<5} {write[i:i + k].mean():8.3f} {np.nanmean(interval[i:i + k]):13.2f}")
+    print(f"writer session open + finalize: first {sessions[0]:.2f} s, last {sessions[-1]:.2f} s")
+    print(f"ratio last {k} / first {k}: write {write[-k:].mean() / write[:k].mean():.2f}, "
+          f"wall per episode (after the first commit) {np.nanmean(interval[-k:]) / np.nanmean(interval[k:2 * k]):.2f} "
+          "(target <= 1.2)")
+    if plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.plot(np.arange(len(write)), write, ".", label="writer: add_frame + save_episode")
+        ax.plot(np.arange(len(interval)), interval, "-", label="wall per episode (between commits)")
+        ax.set_xlabel("episode index")
+        ax.set_ylabel("seconds")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(plot, dpi=120)
+        print(f"plot written to {plot}")
 
 
 if __name__ == "__main__":
