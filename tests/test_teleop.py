@@ -444,8 +444,14 @@ def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
                 left = page.evaluate("window.bavo.lastHeader.ee.left")
                 assert left[0] - h["ee"]["left"][0] > 0.02
                 # gamepad: left stick pushed up (axis 1 = -1) moves the selected arm away from the operator (+y)
+                # (held until the arm has moved 3 cm or 20 s passed: on a loaded machine the 25 Hz loop slips
+                # behind the wall clock, so a fixed hold time moves the arm by less)
                 page.evaluate("window.__pad = {axes: [0, -1, 0, 0], buttons: Array.from({length: 17}, () => ({pressed: false}))}")
-                time.sleep(0.5)
+                deadline = time.time() + 20
+                while time.time() < deadline:
+                    time.sleep(0.2)
+                    if page.evaluate("window.bavo.lastHeader.ee.left")[1] - left[1] > 0.03:
+                        break
                 page.evaluate("window.__pad = null")
                 time.sleep(0.3)
                 left2 = page.evaluate("window.bavo.lastHeader.ee.left")
