@@ -11,6 +11,7 @@
 #   bash scripts/train_cube_handoff.sh afar         # rung 3: A-FAR (same budget and seed as rung 2)
 #   bash scripts/train_cube_handoff.sh eval RUN     # bavo-eval of outputs/train/RUN (clean + stage, 20 seeds)
 #
+# Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
 # Environment overrides: STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, TAG
 # (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/maniflow_state_b256_s1000).
 set -euo pipefail
@@ -57,9 +58,9 @@ case "${1:-}" in
         for v in points state; do
             [ -d "${DS}_$v" ] || .venv/bin/python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
         done ;;
-    state) train "maniflow_state${TAG}_s$SEED" maniflow state ;;
-    maniflow) train "maniflow${TAG}_s$SEED" maniflow points ;;
-    afar) train "afar${TAG}_s$SEED" afar points ;;
+    state) train "maniflow_state${TAG}_s$SEED" maniflow state "${@:2}" ;;
+    maniflow) train "maniflow${TAG}_s$SEED" maniflow points "${@:2}" ;;
+    afar) train "afar${TAG}_s$SEED" afar points "${@:2}" ;;
     eval)
         run=${2:?usage: eval RUN [STEP]}
         step=${3:-last}
