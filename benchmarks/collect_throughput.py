@@ -169,13 +169,18 @@ def per_episode_costs(root: Path, commits: list[dict], t0: float, plot: Path | N
     if len(write) < 2:
         return
     k = min(10, len(write) // 2)
+
+    def nanmean(x):  # the first commit's episodes have no interval (start-up): NaN, without a warning
+        x = x[~np.isnan(x)]
+        return float(x.mean()) if len(x) else float("nan")
+
     print(f"\nper-episode cost against episode index (groups of {k}; seconds):")
     print(f"  {'episodes':>10} {'write':>8} {'wall/episode':>13}")
     for i in range(0, len(write), k):
-        print(f"  {i:>4}-{min(i + k, len(write)) - 1:<5} {write[i:i + k].mean():8.3f} {np.nanmean(interval[i:i + k]):13.2f}")
+        print(f"  {i:>4}-{min(i + k, len(write)) - 1:<5} {write[i:i + k].mean():8.3f} {nanmean(interval[i:i + k]):13.2f}")
     print(f"writer session open + finalize: first {sessions[0]:.2f} s, last {sessions[-1]:.2f} s")
     print(f"ratio last {k} / first {k}: write {write[-k:].mean() / write[:k].mean():.2f}, "
-          f"wall per episode (after the first commit) {np.nanmean(interval[-k:]) / np.nanmean(interval[k:2 * k]):.2f} "
+          f"wall per episode (after the first commit) {nanmean(interval[-k:]) / nanmean(interval[k:2 * k]):.2f} "
           "(target <= 1.2)")
     if plot is not None:
         import matplotlib
