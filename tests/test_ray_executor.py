@@ -1,12 +1,14 @@
 """`bavo-eval --executor ray` (issue 15): the same results as the local executor, resume, a killed Ray worker
-retried with nothing lost or duplicated, and the local executor never importing Ray.
+retried with nothing lost or duplicated, a killed driver re-run doing only the unfinished episodes, and the local
+executor never importing Ray.
 
 The Ray tests start one private local Ray for the module (`ray.init(num_cpus=2)`, loopback only, no dashboard)
 and are skipped, with the reason, where Ray (the optional 'ray' extra) is not installed. Its workers get this
 checkout and this folder on PYTHONPATH (the environment Ray starts with), so they import the package under test
 and this module's fake episode. The fake episodes (`fake_job`: a short sleep, a fixed record) keep the resume and
 kill tests cheap: the write path, resume and lock are the real ones. The real comparison runs two scripted-expert
-episodes of Cube Handoff per executor (~20 s on 2 cores).
+episodes of Cube Handoff per executor (~20 s on 2 cores); the killed-driver test runs two `bavo-eval` commands,
+each starting its own private Ray (~35 s). About 65 s in all on 2 cores.
 """
 
 from __future__ import annotations
@@ -178,3 +180,47 @@ except SystemExit as e:
         in proc.stdout, proc.stdout
     assert sorted(_log_seeds(tmp_path / "local")) == [1000, 1001]
     assert not (tmp_path / "ray").exists()
+
+
+# A bavo-eval on its own private Ray whose episodes are fake (1 s each; defined in __main__, so Ray ships them).
+FAKE_RAY_EVAL = """
+import sys, time
+from lerobot_bavo.eval import cli
+def fake(job):
+    time.sleep(1.0)
+    return {"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True, "progress": 5}
+cli._run_job = fake
+cli.main(sys.argv[1:])
+"""
+
+
+@needs_ray
+def test_a_killed_driver_rerun_does_only_the_unfinished_episodes(tmp_path):
+    """kill -9 of `bavo-eval --executor ray` (its own private Ray) after a few episodes; the same command again
+    keeps those and runs the rest: every seed once."""
+    out = tmp_path / "eval"
+    cmd = [sys.executable, "-c", FAKE_RAY_EVAL, "--policy", "expert", "--tasks", "cube_handoff", "--conditions",
+           "clean", "--episodes", "12", "--videos", "0", "--workers", "2", "--executor", "ray", "--output-dir", str(out)]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
+               OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    env.pop("RAY_ADDRESS", None)
+    first = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 180
+        log = out / "episodes.jsonl"
+        while time.time() < deadline and first.poll() is None and not (log.exists() and log.read_text().count("\n") >= 2):
+            time.sleep(0.1)
+        assert first.poll() is None, f"bavo-eval ended before it could be killed: {first.communicate()[1][-2000:]}"
+        first.kill()
+        first.wait(timeout=30)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    kept = _log_seeds(out)
+    assert 2 <= len(kept) < 12 and len(set(kept)) == len(kept)
+    rerun = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    assert f"{len(kept)} finished episodes kept, {12 - len(kept)} to run" in rerun.stdout
+    assert sorted(_log_seeds(out)) == list(range(1000, 1012))
+    results = json.loads((out / "results.json").read_text())
+    assert results["cells"]["cube_handoff/clean"]["n_episodes"] == 12
