@@ -24,6 +24,11 @@ checkpoints you trust. The env is built with the point count, image size and obj
 checkpoint records, and the point frame its training dataset records (--point-frame when no file
 records it; a conflicting --point-frame is refused).
 
+Executors: `--executor local` (default) runs episodes in --workers local processes; `--executor ray` runs
+every episode as a Ray task (pip install 'lerobot_env_bavo[ray]'), on a private local Ray with --workers CPUs,
+or on the cluster at --ray-address (`ray start --head` prints it). Records are written by this process as
+episodes finish, so resume, the lock and results.json are the same; a Ray worker lost mid-episode is retried.
+
 Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
 (the privileged scripted expert with camera recovery) or `expert-frozen-camera` (same
 manipulation, camera arm never moves; its CVG is exactly 0 by construction).
@@ -193,11 +198,27 @@ def append_record(log, record: dict) -> None:
                          "command: finished episodes are kept and the cut-off last line is dropped") from None
 
 
+EXECUTORS = ("local", "ray")
+
+
+def _make_pool(executor: str, workers: int, jobs: list, ray_address: str | None):
+    """The pool episodes run in: local processes (in-process for one worker), or Ray tasks (`RayPool`; Ray is
+    imported only here). Both give `imap(fn, jobs)`; Ray's results come in completion order."""
+    if executor == "ray" and jobs:
+        from lerobot_bavo.runtime.ray_pool import RayPool
+
+        return RayPool(workers, address=ray_address)
+    return WorkerPool(workers if workers > 1 and jobs else 0, start_method=None)
+
+
 def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
              output_dir: Path, workers: int = 1, videos: int = 1, trust_remote_code: bool = False,
-             point_frame: str | None = None, rerun_dir: Path | None = None) -> dict:
+             point_frame: str | None = None, rerun_dir: Path | None = None, executor: str = "local",
+             ray_address: str | None = None) -> dict:
     """Run (or resume) the evaluation and write results.json / results.md; returns the results.
-    `rerun_dir`: also write a rerun recording of every episode run there (`lerobot_bavo.viz`)."""
+    `rerun_dir`: also write a rerun recording of every episode run there (`lerobot_bavo.viz`).
+    `executor`: "local" (a `WorkerPool` of `workers` processes) or "ray" (a `RayPool`: Ray tasks on the cluster
+    at `ray_address`, or on a private local Ray with `workers` CPUs)."""
     from tqdm import tqdm
 
     from lerobot_bavo.checkpoints import CheckpointMismatchError, check_processor_steps, checkpoint_digest
@@ -216,6 +237,17 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
         raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
                          "nor a LeRobot checkpoint directory containing config.json")
+    if executor not in EXECUTORS:
+        raise SystemExit(f"bavo-eval: --executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if ray_address and executor != "ray":
+        raise SystemExit("bavo-eval: --ray-address needs --executor ray")
+    if executor == "ray":
+        from lerobot_bavo.runtime.ray_pool import RayMissingError, import_ray
+
+        try:
+            import_ray()
+        except RayMissingError as e:
+            raise SystemExit(f"bavo-eval: {e}") from None
     if point_frame is not None and point_frame not in POINT_FRAMES:
         raise SystemExit(f"bavo-eval: --point-frame must be base or camera, got {point_frame!r}")
     if output_dir.exists() and not output_dir.is_dir():
@@ -243,13 +275,13 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
         raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
     try:
         return _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed,
-                                output_dir, workers, videos, trust_remote_code, tqdm, rerun_dir)
+                                output_dir, workers, videos, trust_remote_code, tqdm, rerun_dir, executor, ray_address)
     finally:
         lock.close()
 
 
 def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed, output_dir, workers,
-                     videos, trust_remote_code, tqdm, rerun_dir=None) -> dict:
+                     videos, trust_remote_code, tqdm, rerun_dir=None, executor="local", ray_address=None) -> dict:
     log_path = output_dir / "episodes.jsonl"
     settings_path = output_dir / "run.json"
     if settings_path.exists():
@@ -285,7 +317,7 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
         print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
 
     with open(log_path, "ab", buffering=0) as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
-        with WorkerPool(workers if workers > 1 and jobs else 0, start_method=None) as pool:
+        with _make_pool(executor, workers, jobs, ray_address) as pool:
             for record in pool.imap(_run_job, jobs):
                 done[(record["task"], record["condition"], record["seed"])] = record
                 append_record(log, record)
@@ -318,7 +350,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=20, help="episodes per (task, condition) (default 20)")
     parser.add_argument("--seed", type=int, default=1000, help="first seed (LeRobot's default start seed)")
     parser.add_argument("--output-dir", type=Path, required=True, help="where results and videos go")
-    parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="parallel worker processes (default 1); with --executor ray and no --ray-address, the "
+                             "CPUs of the private local Ray")
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help="where episodes run: local worker processes (default) or Ray tasks (needs the 'ray' "
+                             "extra: pip install 'lerobot_env_bavo[ray]')")
+    parser.add_argument("--ray-address", default=None, metavar="ADDR",
+                        help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: "
+                             "start a private local Ray with --workers CPUs")
     parser.add_argument("--videos", type=int, default=1, help="episodes recorded per cell (default 1)")
     parser.add_argument("--rerun", type=Path, default=None, metavar="DIR",
                         help="also write one rerun recording (.rrd) per episode run into DIR (view with bavo-view --rrd)")
@@ -337,7 +377,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
                  args.output_dir, workers=args.workers, videos=args.videos, trust_remote_code=args.trust_remote_code,
-                 point_frame=args.point_frame, rerun_dir=args.rerun)
+                 point_frame=args.point_frame, rerun_dir=args.rerun, executor=args.executor,
+                 ray_address=args.ray_address)
     except (CheckpointMismatchError, UntrustedCheckpointError) as e:  # raised while a worker loads the policy
         raise SystemExit(f"bavo-eval: {e}") from None
 
