@@ -206,7 +206,6 @@ class Collector:
         self.settings = cfg.record_settings()
         self.record: CollectionRecord | None = None
         self.snapshot = WriterSessionSnapshot(self.root, self.staging / "snapshot")
-        self._committing = False
 
     def _save_record(self) -> None:
         self.record.save(self.root)
@@ -307,23 +306,27 @@ class Collector:
 
     # -------------------------------------------------------------- commit
     def _commit(self, batch: list[dict], discards: list[dict], next_seed: int, timings: dict | None = None) -> None:
-        """Append `batch` (summaries of staged kept episodes, seed order) to the dataset."""
+        """Append `batch` (summaries of staged kept episodes, seed order) to the dataset; an interruption
+        (error, Ctrl+C) before the record is saved rolls the writer session back (`_rollback`)."""
         t0 = time.perf_counter()
         self.snapshot.take()
         self.record.pending_commit = PendingCommit([b["seed"] for b in batch], next_seed)
         self._save_record()
-        self._committing = True
-        first_index = self._write_batch(batch, {} if timings is None else timings)
-        for i, b in enumerate(batch):
-            self.record.episodes.append({"episode_index": first_index + i, "seed": b["seed"], "length": b["length"],
-                                         "recoveries": b.get("recoveries")})
-        self.record.discarded.extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
-                                     for d in discards)
-        self.record.next_seed = next_seed
-        self.record.pending_commit = None
-        self.record.complete = False
-        self._save_record()
-        self._committing = False
+        try:  # until the record says so, the session is pending: any interruption rolls it back
+            first_index = self._write_batch(batch, {} if timings is None else timings)
+            for i, b in enumerate(batch):
+                self.record.episodes.append({"episode_index": first_index + i, "seed": b["seed"],
+                                             "length": b["length"], "recoveries": b.get("recoveries")})
+            self.record.discarded.extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
+                                         for d in discards)
+            self.record.next_seed = next_seed
+            self.record.pending_commit = None
+            self.record.complete = False
+            self._save_record()
+        except BaseException:
+            logger.warning("interrupted during a commit: rolling it back")
+            self._rollback()
+            raise
         for b in batch:
             self._drop_staged(b["seed"])
         for d in discards:
@@ -451,12 +454,6 @@ class Collector:
                     sched.submit(pool, run_job, self._job(seed))
                     run_stats["attempts"] += 1
                 sched.wait()
-        except BaseException:
-            if self._committing:
-                logger.warning("interrupted during a commit: rolling it back")
-                self._rollback()
-                self._committing = False
-            raise
         finally:
             bar.close()
             if pool is not None:

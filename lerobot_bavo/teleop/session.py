@@ -268,13 +268,7 @@ class HumanDataset:
     def _commit(self, summary: dict) -> dict:
         col = self.collector
         seed = int(summary["seed"])
-        try:
-            col._commit([summary], [], max(col.record.next_seed, seed + 1))
-        except BaseException:
-            if col._committing:
-                col._rollback()
-                col._committing = False
-            raise
+        col._commit([summary], [], max(col.record.next_seed, seed + 1))  # rolls itself back if interrupted
         entry = col.record.episodes[-1]
         entry.update(source="human", success=bool(summary["success"]), progress=int(summary["progress"]),
                      input_log=str(LOG_DIR / f"seed_{seed:08d}.jsonl"))
