@@ -6,7 +6,6 @@ Small settings throughout (48 x 64 images, 32 points, short episodes) so the sui
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import shutil
