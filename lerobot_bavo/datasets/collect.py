@@ -51,6 +51,7 @@ from lerobot_bavo.datasets.hub import SIDECAR
 from lerobot_bavo.datasets.lerobot_private import abandon_writer, skip_noop_image_embedding
 from lerobot_bavo.datasets.staging import load_staged, run_job, seed_of, staged_path
 from lerobot_bavo.datasets.transaction import SnapshotMissing, WriterSessionSnapshot, remove_stray_dirs
+from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
 from lerobot_bavo.runtime.pool import WorkerPool
 
@@ -74,6 +75,8 @@ class CollectConfig:
         settings: observation settings (image size, points, frame, fovy).
         episode_length: control-step limit per episode (None: the task's own).
         keep_failures: keep unsuccessful episodes too (tests / debugging only).
+        execution_noise: DART-style noise on the executed arm joint targets; the dataset records the
+            expert's clean actions (`experts/perturbation.py`). Off by default.
         use_videos: store the active image as video (LeRobot's default codec).
         push_to_hub, private: upload when done.
         max_discard_ratio: abort when more than this many discards per wanted episode (plus 10) occur.
@@ -92,6 +95,7 @@ class CollectConfig:
     settings: ObservationSettings = field(default_factory=ObservationSettings)
     episode_length: int | None = None
     keep_failures: bool = False
+    execution_noise: ExecutionNoise = field(default_factory=ExecutionNoise)
     use_videos: bool = True
     push_to_hub: bool = False
     private: bool | None = None
@@ -133,6 +137,8 @@ class CollectConfig:
             "episode_length": self.episode_length,
             "base_seed": self.seed,
             "keep_failures": self.keep_failures,
+            # Only when on, so that the records of collections made before the option existed still match.
+            **({"execution_noise": self.execution_noise.to_dict()} if self.execution_noise.enabled else {}),
             "use_videos": self.use_videos,
             "teacher": {"name": "simulator-exact", "clip_length": S.CLIP_LENGTH, "anchor_index": S.ANCHOR_INDEX,
                         "n_future": S.N_FUTURE, "visibility_tol_m": 0.01},
@@ -465,7 +471,8 @@ class Collector:
         cfg = self.cfg
         return {"task": cfg.task, "condition": cfg.condition, "settings": cfg.settings.to_dict(),
                 "episode_length": cfg.episode_length, "keep_failures": cfg.keep_failures, "seed": seed,
-                "staging": str(self.staging)}
+                "staging": str(self.staging),
+                "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None}
 
     def _check_discards(self, total: int, limit: int, kept: int, bar) -> None:
         bar.set_postfix(discarded=total)
@@ -543,6 +550,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--point-frame", default="base", choices=POINT_FRAMES)
     p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")
     p.add_argument("--keep-failures", action="store_true", help="keep unsuccessful episodes (debugging only)")
+    p.add_argument("--execution-noise", type=float, default=0.0, metavar="RAD",
+                   help="DART-style demonstrations: execute the expert's arm joint targets plus a slowly varying "
+                        "random offset of this standard deviation in radians (AR(1), correlation 0.9 per step; "
+                        "grippers and camera untouched) while recording its clean targets, so the data show "
+                        "corrections back to the plan. 0 (default): off. 0.01 measured best on cube_handoff")
     p.add_argument("--push-to-hub", action="store_true", help="upload when done (needs `huggingface-cli login`)")
     p.add_argument("--private", action="store_true", help="create the Hub repository private")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -577,7 +589,8 @@ def main(argv: list[str] | None = None) -> int:
             task=args.task, condition=args.condition, episodes=args.episodes, repo_id=args.repo_id, root=args.root,
             workers=args.workers, seed=args.seed, commit_every=args.commit_every,
             settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
-            episode_length=args.episode_length, keep_failures=args.keep_failures, push_to_hub=args.push_to_hub,
+            episode_length=args.episode_length, keep_failures=args.keep_failures,
+            execution_noise=ExecutionNoise(std=args.execution_noise), push_to_hub=args.push_to_hub,
             private=True if args.private else None, progress=not args.no_progress,
             command=f"bavo-collect {argv_text}",
         )

@@ -19,6 +19,7 @@ from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.features import ObservationSettings, flatten_points
 from lerobot_bavo.envs.occlusion import stage_index
 from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
+from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.sim import constants as C
 
 
@@ -99,8 +100,11 @@ class EpisodeRecorder:
         self._seg.close()
         self.env.close()
 
-    def record(self, seed: int, agent=None) -> EpisodeRecord:
+    def record(self, seed: int, agent=None, execution_noise: ExecutionNoise | None = None) -> EpisodeRecord:
         """Record the episode of `seed`, driven by the scripted expert, or by `agent` when given.
+
+        With `execution_noise` (DART, `experts/perturbation.py`), the env executes the agent's arm joint
+        targets plus seeded noise while the record keeps the agent's clean action.
 
         `agent` (e.g. `lerobot_bavo.teleop`'s human operator) has the expert's interface: `reset()`,
         `act(obs, info)`, `recovering` (True marks recovery frames), and optionally `source`
@@ -113,6 +117,7 @@ class EpisodeRecorder:
         obs, info = env.reset(seed=seed)
         expert = make_expert(env, seed=seed) if agent is None else agent
         expert.reset()
+        noise = execution_noise.process(seed) if execution_noise is not None and execution_noise.enabled else None
         task = env.task
         rows: dict[str, list] = {k: [] for k in (
             "state", "action", "rgb", "point_cloud", "point_pixels", "camera_pose", "environment_state", "progress", "occlusion_event",
@@ -156,7 +161,7 @@ class EpisodeRecorder:
             action = np.asarray(expert.act(obs, info), dtype=np.float32)
             rows["action"].append(action)
             rows["occlusion_active"].append(float(expert.recovering))
-            obs, _, terminated, truncated, info = env.step(action)
+            obs, _, terminated, truncated, info = env.step(action if noise is None else noise.perturb(action))
             if terminated or truncated or getattr(expert, "stop_requested", False):
                 break
         arrays = {k: np.stack(v) for k, v in rows.items()}

@@ -20,6 +20,7 @@ import numpy as np
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collection_record import write_json_atomic
+from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.runtime.pool import ProcessCache
 
@@ -58,7 +59,8 @@ def run_job(job: dict) -> dict:
     recorder = _RECORDERS.get(key, lambda: EpisodeRecorder(job["task"], job["condition"], settings,
                                                             job["episode_length"]))
     cpu0 = time.process_time()
-    record = recorder.record(int(job["seed"]))
+    noise = ExecutionNoise(**job["execution_noise"]) if job.get("execution_noise") else None
+    record = recorder.record(int(job["seed"]), execution_noise=noise)
     return stage_episode(record, Path(job["staging"]), record.success or job["keep_failures"], cpu0)
 
 

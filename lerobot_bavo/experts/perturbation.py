@@ -1,0 +1,89 @@
+"""Execution noise for demonstrations (DART: Laskey et al., "DART: Noise Injection for Robust Imitation
+Learning", CoRL 2017).
+
+Why: the scripted experts never make a mistake, so their demonstrations only show states on the
+expert's own path. A cloned policy that drifts a centimetre off that path sees states no
+demonstration contains, and its errors compound (measured on Cube Handoff, privileged-state MLP,
+20 Clean episodes: 4/20 successes from 40 clean demonstrations, 9/20 from 40 demonstrations
+recorded with this noise at 0.01 rad; `docs/results/ladder_cube_handoff.md`). With execution
+noise, the env executes the expert's joint targets plus a slowly varying random offset, while the
+dataset records the expert's clean targets; because the experts plan in their own commanded
+joint space (not from the perturbed measured state) and re-plan each phase from the objects'
+actual poses, every recorded action points back towards the plan from wherever the noise took
+the arm, which is the correction a policy needs to learn.
+
+The offset is an AR(1) (discretised Ornstein-Uhlenbeck) process per manipulator arm joint, with
+stationary standard deviation `std` (radians) and per-step correlation `correlation` (at 25 Hz,
+0.9 gives a time constant of ~0.4 s): white noise of the same size would be filtered out by the
+position controllers before it moved the arm. Grippers and the camera arm are never perturbed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from lerobot_bavo.sim import constants as C
+
+# Entries of the 21-d action that get noise: both manipulators' six arm joints (not the grippers,
+# not the camera arm).
+PERTURBED_JOINTS = np.r_[np.arange(21)[C.LEFT_ARM], np.arange(21)[C.RIGHT_ARM]]
+
+
+def ar1_step(offset: np.ndarray, correlation: float, std: float, eps: np.ndarray) -> np.ndarray:
+    """One step of an AR(1) process whose stationary standard deviation is `std`:
+    x' = rho x + sqrt(1 - rho^2) std eps, with eps ~ N(0, 1)."""
+    return correlation * offset + np.sqrt(1.0 - correlation * correlation) * std * eps
+
+
+@dataclass(frozen=True)
+class ExecutionNoise:
+    """DART-style noise on the executed arm joint targets (see the module docstring).
+
+    Args:
+        std: stationary standard deviation of each joint's offset, radians (0: no noise). 0.01 rad
+            (~5 mm at the gripper) was measured best on Cube Handoff; 0.03 rad made the expert fail
+            every episode.
+        correlation: per-control-step AR(1) coefficient in [0, 1).
+    """
+
+    std: float = 0.0
+    correlation: float = 0.9
+
+    def __post_init__(self):
+        if not np.isfinite(self.std) or self.std < 0:
+            raise ValueError(f"execution noise std must be a finite number >= 0 (radians), got {self.std}")
+        if not 0.0 <= self.correlation < 1.0:
+            raise ValueError(f"execution noise correlation must be in [0, 1), got {self.correlation}")
+
+    @property
+    def enabled(self) -> bool:
+        return self.std > 0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def process(self, seed: int) -> JointNoise:
+        """The noise of one episode, drawn from its own generator seeded by the episode seed (never a
+        global one), so the same seed gives the same perturbed episode."""
+        return JointNoise(self, seed)
+
+
+class JointNoise:
+    """The per-episode noise process: `perturb(action)` returns the action to execute."""
+
+    def __init__(self, noise: ExecutionNoise, seed: int):
+        self.noise = noise
+        self.rng = np.random.default_rng([int(seed), 0xDA27])
+        self.offset = np.zeros(len(PERTURBED_JOINTS))
+
+    def perturb(self, action: np.ndarray) -> np.ndarray:
+        """`action` (21,) with the next offset added to the arm joints; a new array, dtype of `action`."""
+        out = np.array(action, copy=True)
+        if not self.noise.enabled:
+            return out
+        eps = self.rng.standard_normal(len(PERTURBED_JOINTS))
+        self.offset = ar1_step(self.offset, self.noise.correlation, self.noise.std, eps)
+        out[PERTURBED_JOINTS] = out[PERTURBED_JOINTS] + self.offset
+        return out
