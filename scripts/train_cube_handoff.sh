@@ -4,7 +4,7 @@
 # checkpointed every SAVE_FREQ steps. On a GPU use the same commands with DEVICE=cuda (and, for the paper's
 # scale, PRESET=paper STEPS=100000).
 #
-#   bash scripts/train_cube_handoff.sh collect      # 100 Stage demonstrations (bavo-collect), ~15-30 min
+#   bash scripts/train_cube_handoff.sh collect      # 100 Stage demonstrations (bavo-collect), ~12-30 min
 #   bash scripts/train_cube_handoff.sh views        # the `points` and `state` training views
 #   bash scripts/train_cube_handoff.sh state        # rung 1: privileged-state ManiFlow
 #   bash scripts/train_cube_handoff.sh maniflow     # rung 2: point-cloud ManiFlow
@@ -13,13 +13,18 @@
 #
 # Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
 # Environment overrides: STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, TAG
-# (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/maniflow_state_b256_s1000).
+# (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/maniflow_state_b256_s1000), and DATA: empty for
+# the noise-free demonstrations (outputs/datasets/bavo_cube_handoff), `dart` for the DART-style ones collected
+# with `--execution-noise $NOISE` (default 0.01 rad; outputs/datasets/bavo_cube_handoff_dart, runs get a _dart
+# suffix).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
 export OMP_NUM_THREADS="${THREADS:-1}"
-DS=outputs/datasets/bavo_cube_handoff
-REPO=local/bavo_cube_handoff
+DATA="${DATA:-}"
+NOISE="${NOISE:-0.01}"
+DS=outputs/datasets/bavo_cube_handoff${DATA:+_$DATA}
+REPO=local/bavo_cube_handoff${DATA:+_$DATA}
 STEPS="${STEPS:-8000}"
 BATCH="${BATCH:-64}"
 SAVE_FREQ="${SAVE_FREQ:-1000}"
@@ -29,7 +34,7 @@ DEVICE="${DEVICE:-cpu}"
 EPISODES="${EPISODES:-20}"
 LR="${LR:-}"          # empty: the policy's preset (1e-4, the paper's)
 WARMUP="${WARMUP:-}"  # empty: the preset's 500 warm-up steps
-TAG="${TAG:-}"
+TAG="${TAG:-}${DATA:+_$DATA}"
 
 train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
     local name=$1 type=$2 view=$3
@@ -53,7 +58,7 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
 case "${1:-}" in
     collect)
         .venv/bin/bavo-collect --task cube_handoff --condition stage --episodes 100 --repo-id "$REPO" \
-            --root "$DS" --workers 2 ;;
+            --root "$DS" --workers 2 ${DATA:+--execution-noise "$NOISE"} ;;
     views)
         for v in points state; do
             [ -d "${DS}_$v" ] || .venv/bin/python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"

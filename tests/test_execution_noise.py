@@ -73,7 +73,8 @@ def test_noise_is_part_of_what_a_resumed_collection_must_match():
     assert "execution_noise" not in base.record_settings()  # records made before the option still match
     noisy = CollectConfig(task="cube_handoff", condition="stage", episodes=1, repo_id="a/b",
                           execution_noise=ExecutionNoise(std=0.01))
-    assert noisy.record_settings()["execution_noise"] == {"std": 0.01, "correlation": 0.9}
+    assert noisy.record_settings()["execution_noise"] == {"std": 0.01, "correlation": 0.9,
+                                                                "clean_contacts": True}
 
 
 def test_cli_refuses_negative_noise(tmp_path, capsys):
@@ -81,3 +82,26 @@ def test_cli_refuses_negative_noise(tmp_path, capsys):
                  "--execution-noise", "-0.1", "--workers", "0", "--no-progress"])
     assert code == 2
     assert "execution noise std" in capsys.readouterr().err
+
+
+def test_contact_phases_are_executed_clean_and_restart_the_offset():
+    action = np.zeros(C.ACTION_DIM)
+    a = ExecutionNoise(std=0.02).process(seed=4)
+    for _ in range(10):
+        a.perturb(action)
+    assert np.abs(a.offset).max() > 0
+    np.testing.assert_array_equal(a.perturb(action, quiet=True), action)  # a contact phase: the plan, exactly
+    np.testing.assert_array_equal(a.offset, 0.0)
+    # after it, the offset grows again from zero: one step of AR(1) from 0 is sqrt(1 - rho^2) std eps
+    first = a.perturb(action)[PERTURBED_JOINTS]
+    assert np.abs(first).max() < 5 * np.sqrt(1 - 0.81) * 0.02
+
+
+def test_cube_handoff_contact_phases_are_phases_of_its_expert():
+    import inspect
+
+    from lerobot_bavo.experts.cube_handoff import CubeHandoffExpert
+
+    source = inspect.getsource(CubeHandoffExpert.script)
+    for phase in CubeHandoffExpert.contact_phases:
+        assert f'phase="{phase}"' in source, phase

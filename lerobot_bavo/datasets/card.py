@@ -75,7 +75,9 @@ def card_description(sidecar: dict, repo_id: str) -> str:
         + (f" (seeds {', '.join(str(d['seed']) for d in discarded[:20])}{' ...' if len(discarded) > 20 else ''})." if discarded else "."),
         *([f"- DART-style execution noise: the env executed the expert's arm joint targets plus an AR(1) offset "
            f"(std {st['execution_noise']['std']} rad, correlation {st['execution_noise']['correlation']} per step; "
-           "grippers and camera untouched); `action` holds the expert's clean targets."]
+           "grippers and camera untouched" + ("; none in the expert's contact phases"
+                                                if st["execution_noise"].get("clean_contacts") else "")
+           + "); `action` holds the expert's clean targets."]
           if st.get("execution_noise") else []),
         f"- Observation: {st['image_height']} x {st['image_width']} RGB, {st['n_points']} points per cloud, "
         f"vertical field of view {st['fovy']} deg (intrinsics f = H / (2 tan(fovy / 2)), principal point at the image centre).",

@@ -161,7 +161,11 @@ class EpisodeRecorder:
             action = np.asarray(expert.act(obs, info), dtype=np.float32)
             rows["action"].append(action)
             rows["occlusion_active"].append(float(expert.recovering))
-            obs, _, terminated, truncated, info = env.step(action if noise is None else noise.perturb(action))
+            if noise is not None:  # DART: execute the perturbed targets, keep the clean ones (contact phases stay clean)
+                quiet = execution_noise.clean_contacts and getattr(expert, "phase", None) in getattr(
+                    expert, "contact_phases", ())
+                action = noise.perturb(action, quiet=quiet)
+            obs, _, terminated, truncated, info = env.step(action)
             if terminated or truncated or getattr(expert, "stop_requested", False):
                 break
         arrays = {k: np.stack(v) for k, v in rows.items()}

@@ -65,6 +65,9 @@ class ScriptedExpert(abc.ABC):
     """
 
     task_name: str = ""  # the benchmark task this expert solves
+    # Phases of approach, grasp and release, where DART-style execution noise is switched off
+    # (`experts/perturbation.py`); empty: noise in every phase.
+    contact_phases: frozenset[str] = frozenset()
     speed_jitter = 0.15
     view_search = ViewSearch()  # where view recovery looks, and when it ends
 

@@ -27,6 +27,8 @@ def left_side_rot(pitch: float = LEFT_PITCH) -> np.ndarray:
 
 class CubeHandoffExpert(ScriptedExpert):
     task_name = "cube_handoff"
+    contact_phases = frozenset({"descend", "grasp", "left_approach", "left_grasp", "right_release", "lower",
+                                "release"})
 
     def script(self):
         cube = self.body_pos("cube")

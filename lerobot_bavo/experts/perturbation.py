@@ -16,6 +16,13 @@ The offset is an AR(1) (discretised Ornstein-Uhlenbeck) process per manipulator 
 stationary standard deviation `std` (radians) and per-step correlation `correlation` (at 25 Hz,
 0.9 gives a time constant of ~0.4 s): white noise of the same size would be filtered out by the
 position controllers before it moved the arm. Grippers and the camera arm are never perturbed.
+
+Contact phases stay clean: while the expert is in one of its `contact_phases` (the final approach,
+grasp and release of an object, where a centimetre off makes the expert itself fail and nothing
+can be recovered), no noise is executed and the offset restarts from zero afterwards, so the
+demonstrations show the arm being brought back onto the plan before contact. Measured on Cube
+Handoff (privileged-state ManiFlow, noise everywhere): once the cube was lifted every episode
+succeeded, but 15 of 20 stopped at the first touch of the cube.
 """
 
 from __future__ import annotations
@@ -46,10 +53,12 @@ class ExecutionNoise:
             (~5 mm at the gripper) was measured best on Cube Handoff; 0.03 rad made the expert fail
             every episode.
         correlation: per-control-step AR(1) coefficient in [0, 1).
+        clean_contacts: no noise during the expert's `contact_phases`.
     """
 
     std: float = 0.0
     correlation: float = 0.9
+    clean_contacts: bool = True
 
     def __post_init__(self):
         if not np.isfinite(self.std) or self.std < 0:
@@ -78,10 +87,13 @@ class JointNoise:
         self.rng = np.random.default_rng([int(seed), 0xDA27])
         self.offset = np.zeros(len(PERTURBED_JOINTS))
 
-    def perturb(self, action: np.ndarray) -> np.ndarray:
-        """`action` (21,) with the next offset added to the arm joints; a new array, dtype of `action`."""
+    def perturb(self, action: np.ndarray, quiet: bool = False) -> np.ndarray:
+        """`action` (21,) with the next offset added to the arm joints; a new array, dtype of `action`.
+        `quiet` (a contact phase): no noise, and the offset restarts from zero."""
         out = np.array(action, copy=True)
-        if not self.noise.enabled:
+        if quiet:
+            self.offset = np.zeros_like(self.offset)
+        if not self.noise.enabled or quiet:
             return out
         eps = self.rng.standard_normal(len(PERTURBED_JOINTS))
         self.offset = ar1_step(self.offset, self.noise.correlation, self.noise.std, eps)
