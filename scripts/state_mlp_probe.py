@@ -44,7 +44,7 @@ def record(args) -> None:
     from lerobot_bavo.experts import make_expert
     from lerobot_bavo.experts.perturbation import ExecutionNoise
 
-    noise = ExecutionNoise(std=args.noise, clean_contacts=not args.noisy_contacts)
+    noise = ExecutionNoise(std=args.noise, clean_contacts=args.clean_contacts)
     # Tiny images: the probe reads state only, which does not depend on the observation's resolution.
     env = BavoEnv(args.task, args.condition, render_mode=None, environment_state=True, n_points=16,
                   image_height=60, image_width=80)
@@ -162,7 +162,7 @@ def main() -> None:
     r.add_argument("--episodes", type=int, default=40, help="successful episodes wanted")
     r.add_argument("--seed", type=int, default=0, help="first seed")
     r.add_argument("--noise", type=float, default=0.0, help="DART execution noise std, rad (0: off)")
-    r.add_argument("--noisy-contacts", action="store_true", help="noise in the expert's contact phases too")
+    r.add_argument("--clean-contacts", action="store_true", help="no noise in the expert's contact phases")
     r.add_argument("--no-jitter", action="store_true", help="the expert's nominal timing (no +-15%% jitter)")
     r.add_argument("--dataset", default=None, help="read a bavo `state` training view instead of rolling out")
     r.add_argument("--out", required=True)

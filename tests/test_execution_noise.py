@@ -74,7 +74,7 @@ def test_noise_is_part_of_what_a_resumed_collection_must_match():
     noisy = CollectConfig(task="cube_handoff", condition="stage", episodes=1, repo_id="a/b",
                           execution_noise=ExecutionNoise(std=0.01))
     assert noisy.record_settings()["execution_noise"] == {"std": 0.01, "correlation": 0.9,
-                                                                "clean_contacts": True}
+                                                                "clean_contacts": False}
 
 
 def test_cli_refuses_negative_noise(tmp_path, capsys):

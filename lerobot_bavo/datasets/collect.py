@@ -555,6 +555,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "random offset of this standard deviation in radians (AR(1), correlation 0.9 per step; "
                         "grippers and camera untouched) while recording its clean targets, so the data show "
                         "corrections back to the plan. 0 (default): off. 0.01 measured best on cube_handoff")
+    p.add_argument("--execution-noise-clean-contacts", action="store_true",
+                   help="with --execution-noise: no noise during the expert's approach/grasp/release phases "
+                        "(its `contact_phases`)")
     p.add_argument("--push-to-hub", action="store_true", help="upload when done (needs `huggingface-cli login`)")
     p.add_argument("--private", action="store_true", help="create the Hub repository private")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -590,7 +593,8 @@ def main(argv: list[str] | None = None) -> int:
             workers=args.workers, seed=args.seed, commit_every=args.commit_every,
             settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
             episode_length=args.episode_length, keep_failures=args.keep_failures,
-            execution_noise=ExecutionNoise(std=args.execution_noise), push_to_hub=args.push_to_hub,
+            execution_noise=ExecutionNoise(std=args.execution_noise,
+                                           clean_contacts=args.execution_noise_clean_contacts), push_to_hub=args.push_to_hub,
             private=True if args.private else None, progress=not args.no_progress,
             command=f"bavo-collect {argv_text}",
         )

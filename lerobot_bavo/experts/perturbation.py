@@ -17,12 +17,14 @@ stationary standard deviation `std` (radians) and per-step correlation `correlat
 0.9 gives a time constant of ~0.4 s): white noise of the same size would be filtered out by the
 position controllers before it moved the arm. Grippers and the camera arm are never perturbed.
 
-Contact phases stay clean: while the expert is in one of its `contact_phases` (the final approach,
-grasp and release of an object, where a centimetre off makes the expert itself fail and nothing
-can be recovered), no noise is executed and the offset restarts from zero afterwards, so the
-demonstrations show the arm being brought back onto the plan before contact. Measured on Cube
-Handoff (privileged-state ManiFlow, noise everywhere): once the cube was lifted every episode
-succeeded, but 15 of 20 stopped at the first touch of the cube.
+Contact phases can be kept clean (`clean_contacts`, off by default): while the expert is in one of
+its `contact_phases` (the final approach, grasp and release of an object, where a centimetre off
+makes the expert itself fail), no noise is executed and the offset restarts from zero afterwards.
+Why it exists: privileged-state ManiFlow trained on noise-everywhere demonstrations completed every
+Cube Handoff episode in which it lifted the cube, but stopped at the first touch of the cube in 15
+of 20. It is not the default because it has not been shown to help: the state-MLP probe scores 5/20
+on Clean either way (`docs/results/ladder_cube_handoff.md`), and the reported runs used noise in
+every phase.
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ class ExecutionNoise:
 
     std: float = 0.0
     correlation: float = 0.9
-    clean_contacts: bool = True
+    clean_contacts: bool = False
 
     def __post_init__(self):
         if not np.isfinite(self.std) or self.std < 0:
