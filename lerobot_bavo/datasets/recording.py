@@ -5,7 +5,8 @@ Frame t of an episode pairs observation o_t with the action a_t the expert sends
 T = number of actions. Besides the dataset's arrays, the recorder keeps privileged per-frame
 state for the teacher (never stored in the dataset): the z-depth and the id of the body seen at
 every pixel (one segmentation render at the observation resolution, from the state the
-observation was rendered in: after the step's occluder placement), and the poses of all bodies.
+observation was rendered in: after the step's occluder placement; the depth is the observation
+render's own z-buffer, `BavoEnv.observation_depth`), and the poses of all bodies.
 """
 
 from __future__ import annotations
@@ -128,7 +129,7 @@ class EpisodeRecorder:
         while True:
             # o_t (and privileged state in the same simulator state it was rendered in)
             ts = time.perf_counter()
-            seg, depth = self._seg.render_segmentation(env.data, self._camera_id, with_depth=True)
+            seg, depth = self._privileged_view()
             t_render += time.perf_counter() - ts
             rows["depth"].append(depth)
             rows["body_seg"].append(self._geom_body[seg])
@@ -185,6 +186,19 @@ class EpisodeRecorder:
             recoveries=len(getattr(expert, "recoveries", [])),
             source=getattr(expert, "source", "expert"),
         )
+
+    def _privileged_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """(geom id per pixel, z-depth) of the current state, as the teacher needs them.
+
+        One segmentation pass without a depth readback: the depth is the observation's own render
+        (`BavoEnv.observation_depth`), made from the same camera, state and geom groups, so it is the
+        same z-buffer (`tests/test_datasets.py` checks this bit for bit). Call it only in the state the
+        last observation was rendered in, as `record` does.
+        """
+        depth = self.env.observation_depth
+        if depth is None:
+            return self._seg.render_segmentation(self.env.data, self._camera_id, with_depth=True)
+        return self._seg.render_segmentation(self.env.data, self._camera_id), depth
 
 
 def _target_stage(task, target: str, progress: int) -> int:
