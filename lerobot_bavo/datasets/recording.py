@@ -5,8 +5,7 @@ Frame t of an episode pairs observation o_t with the action a_t the expert sends
 T = number of actions. Besides the dataset's arrays, the recorder keeps privileged per-frame
 state for the teacher (never stored in the dataset): the z-depth and the id of the body seen at
 every pixel (one segmentation render at the observation resolution, from the state the
-observation was rendered in: after the step's occluder placement; the depth is the observation
-render's own z-buffer, `BavoEnv.observation_depth`), and the poses of all bodies.
+observation was rendered in: after the step's occluder placement), and the poses of all bodies.
 """
 
 from __future__ import annotations
@@ -188,17 +187,14 @@ class EpisodeRecorder:
         )
 
     def _privileged_view(self) -> tuple[np.ndarray, np.ndarray]:
-        """(geom id per pixel, z-depth) of the current state, as the teacher needs them.
+        """(geom id per pixel, z-depth) of the current state, from one segmentation pass with depth readback.
 
-        One segmentation pass without a depth readback: the depth is the observation's own render
-        (`BavoEnv.observation_depth`), made from the same camera, state and geom groups, so it is the
-        same z-buffer (`tests/test_datasets.py` checks this bit for bit). Call it only in the state the
-        last observation was rendered in, as `record` does.
+        Reusing the observation's own depth (`BavoEnv.observation_depth`) instead was tried for issue 11: it is
+        bit-identical at 48 x 64 (`tests/test_datasets.py`, `tests/test_collect_content.py`), but
+        `benchmarks/collect_throughput.py --compare-paths` at 240 x 320 reported non-identical privileged
+        arrays (not yet diagnosed), so the readback stays until that is understood.
         """
-        depth = self.env.observation_depth
-        if depth is None:
-            return self._seg.render_segmentation(self.env.data, self._camera_id, with_depth=True)
-        return self._seg.render_segmentation(self.env.data, self._camera_id), depth
+        return self._seg.render_segmentation(self.env.data, self._camera_id, with_depth=True)
 
 
 def _target_stage(task, target: str, progress: int) -> int:
