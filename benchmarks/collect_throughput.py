@@ -20,6 +20,16 @@ to the first 10, and plotted with `--plot FILE.png`. A full 100-episode run:
     python benchmarks/collect_throughput.py --episodes 100 --commit-every 10 --plot docs/results/collect_cost.png
 
     python benchmarks/collect_throughput.py [--episodes 6] [--workers 2] [--task cube_handoff] [--keep]
+
+Old against new worker path, side by side in one process (`--compare-paths N`): two recorders of the
+same settings, one with the worker's per-frame privileged renders as they were before issue 11's
+render cuts (`_legacy_privileged_view`: a segmentation pass that also reads depth back, the old id
+decode), one as now; they record the same seeds in alternating order, and the benchmark prints CPU ms
+per frame of each and their ratio (a ratio stays meaningful on a busy machine), checks that both give
+identical privileged arrays, and projects the 100-episode wall time from the last idle-machine run.
+No dataset is written:
+
+    python benchmarks/collect_throughput.py --compare-paths 4 [--compare-steps 150]
 """
 
 from __future__ import annotations
@@ -66,7 +76,13 @@ def main() -> None:
     ap.add_argument("--root", type=Path, default=None, help="dataset folder (default: a temporary one, removed)")
     ap.add_argument("--keep", action="store_true", help="keep the temporary dataset")
     ap.add_argument("--plot", type=Path, default=None, help="write the per-episode cost curve to this PNG")
+    ap.add_argument("--compare-paths", type=int, default=0, metavar="N",
+                    help="instead of a collection: old vs new worker path on N seeds each, in one process")
+    ap.add_argument("--compare-steps", type=int, default=None, help="episode length limit for --compare-paths")
     args = ap.parse_args()
+    if args.compare_paths:
+        compare_paths(args.task, args.condition, args.compare_paths, args.compare_steps)
+        return
 
     import datasets
 
@@ -147,6 +163,85 @@ def main() -> None:
         shutil.rmtree(tmp)
     elif tmp is not None:
         print(f"dataset kept at {root}")
+
+
+# Last idle-machine measurement of a whole run (README): 100 Stage Cube Handoff episodes, 2 workers.
+BASELINE_100_WALL_S = 578.5
+BASELINE_WORKER_CPU_S, BASELINE_WRITER_CPU_S = 6.7, 3.4  # per episode
+
+
+def _legacy_privileged_view(recorder):
+    """The worker's privileged render before issue 11's cuts, verbatim: one segmentation pass that reads
+    depth back too (the observation render had already read the same z-buffer), and the old id decode."""
+    import mujoco
+    import numpy as np
+
+    r, data = recorder._seg, recorder.env.data
+    r._update(data, recorder._camera_id, None)
+    r._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+    r._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+    try:
+        mujoco.mjr_render(r._rect, r._scene, r._ctx)
+        mujoco.mjr_readPixels(r._rgb, r._depth, r._rect, r._ctx)
+    finally:
+        r._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
+        r._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
+    rgb = np.flipud(r._rgb).astype(np.int32)
+    segid = rgb[..., 0] + rgb[..., 1] * 256 + rgb[..., 2] * 65536 - 1
+    ngeom = r._scene.ngeom
+    lut = np.full(ngeom + 1, -1, dtype=np.int32)
+    for i in range(ngeom):
+        g = r._scene.geoms[i]
+        if g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+            lut[i] = g.objid
+    seg = lut[np.where((segid >= 0) & (segid < ngeom), segid, ngeom)]
+    return seg, np.flipud(r._metric_depth(r._depth)).astype(np.float32)
+
+
+def compare_paths(task: str, condition: str, episodes: int, steps: int | None) -> None:
+    """CPU ms per recorded frame of the old and the new worker path, same seeds, alternating order."""
+    import types
+
+    import numpy as np
+
+    from lerobot_bavo.datasets.recording import EpisodeRecorder
+    from lerobot_bavo.features import ObservationSettings
+
+    paths = {name: EpisodeRecorder(task, condition, ObservationSettings(), steps) for name in ("old", "new")}
+    paths["old"]._privileged_view = types.MethodType(_legacy_privileged_view, paths["old"])
+    for rec in paths.values():
+        rec.record(10_000)  # warm-up: first renders, imports
+    cpu = {name: 0.0 for name in paths}
+    frames = {name: 0 for name in paths}
+    identical = True
+    for i in range(episodes):
+        records = {}
+        for name in (("old", "new") if i % 2 == 0 else ("new", "old")):
+            c0 = time.process_time()  # the whole process: llvmpipe's render threads included
+            records[name] = paths[name].record(i)
+            cpu[name] += time.process_time() - c0
+            frames[name] += records[name].length
+        a, b = records["old"], records["new"]
+        same = all(np.array_equal(getattr(a, k), getattr(b, k)) for k in (
+            "depth", "body_seg", "rgb", "point_cloud", "visibility", "action", "state"))
+        identical &= same
+        print(f"seed {i}: {a.length} frames; old {1000 * cpu['old'] / frames['old']:.2f} ms/frame, "
+              f"new {1000 * cpu['new'] / frames['new']:.2f} ms/frame so far; arrays identical: {same}", flush=True)
+    old_ms, new_ms = (1000 * cpu[k] / frames[k] for k in ("old", "new"))
+    ratio = new_ms / old_ms
+    projected = BASELINE_100_WALL_S * (BASELINE_WORKER_CPU_S * ratio + BASELINE_WRITER_CPU_S) / (
+        BASELINE_WORKER_CPU_S + BASELINE_WRITER_CPU_S)
+    print(f"\n== old vs new worker path: {task} / {condition}, {episodes} seeds each, load average "
+          f"{os.getloadavg()[0]:.1f} ==")
+    print(f"worker CPU per frame (record(): sim, expert, renders): old {old_ms:.2f} ms, new {new_ms:.2f} ms, "
+          f"new / old = {ratio:.3f}; privileged arrays identical: {identical}")
+    print(f"PROJECTED 100 Stage episodes: {projected:.0f} s = {projected / 60:.1f} min (the idle-machine "
+          f"{BASELINE_100_WALL_S} s scaled by CPU per episode: worker {BASELINE_WORKER_CPU_S} s x {ratio:.3f} + "
+          f"writer {BASELINE_WRITER_CPU_S} s; a projection, not a measurement)")
+    print(json.dumps({"old_ms_per_frame": round(old_ms, 2), "new_ms_per_frame": round(new_ms, 2),
+                      "ratio": round(ratio, 3), "identical": bool(identical), "projected_100_s": round(projected)}))
+    for rec in paths.values():
+        rec.close()
 
 
 def per_episode_costs(root: Path, commits: list[dict], t0: float, plot: Path | None) -> None:

@@ -455,3 +455,32 @@ def test_point_cloud_normalisation_is_independent_of_lerobot_edits(dataset_root,
     expected = 2 * (frame.numpy() - lo) / np.maximum(hi - lo, 1e-8) - 1
     np.testing.assert_allclose(out.numpy(), expected, atol=1e-5)
     torch.testing.assert_close(out_perm.reshape(n, 6), out[perm])
+
+
+@pytest.mark.parametrize("condition", ["stage", "clean"])
+def test_teacher_depth_reused_from_the_observation_is_the_segmentation_pass_depth(condition):
+    """The recorder takes the teacher's depth from the observation's render instead of reading it back from
+    its segmentation pass (issue 11); both passes see the same camera, state and geom groups, so the z-buffers
+    must be bit-identical (occluder in view, moving arms, several frames)."""
+    import types
+
+    from lerobot_bavo.datasets.recording import EpisodeRecorder
+
+    rec = EpisodeRecorder("cube_handoff", condition, SETTINGS, episode_length=12)
+    both = []
+
+    def view(self):
+        seg, depth = self._seg.render_segmentation(self.env.data, self._camera_id, with_depth=True)
+        reused = self.env.observation_depth
+        both.append((depth, reused))
+        return seg, reused
+
+    rec._privileged_view = types.MethodType(view, rec)
+    try:
+        rec.record(seed=1)
+    finally:
+        rec.close()
+    assert len(both) == 12
+    for t, (read_back, reused) in enumerate(both):
+        assert reused.dtype == read_back.dtype == np.float32
+        assert np.array_equal(read_back, reused), f"frame {t}: observation depth differs from the segmentation pass"

@@ -128,7 +128,7 @@ class EpisodeRecorder:
         while True:
             # o_t (and privileged state in the same simulator state it was rendered in)
             ts = time.perf_counter()
-            seg, depth = self._seg.render_segmentation(env.data, self._camera_id, with_depth=True)
+            seg, depth = self._privileged_view()
             t_render += time.perf_counter() - ts
             rows["depth"].append(depth)
             rows["body_seg"].append(self._geom_body[seg])
@@ -189,6 +189,16 @@ class EpisodeRecorder:
             recoveries=len(getattr(expert, "recoveries", [])),
             source=getattr(expert, "source", "expert"),
         )
+
+    def _privileged_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """(geom id per pixel, z-depth) of the current state, from one segmentation pass with depth readback.
+
+        Reusing the observation's own depth (`BavoEnv.observation_depth`) instead was tried for issue 11: it is
+        bit-identical at 48 x 64 (`tests/test_datasets.py`, `tests/test_collect_content.py`), but
+        `benchmarks/collect_throughput.py --compare-paths` at 240 x 320 reported non-identical privileged
+        arrays (not yet diagnosed), so the readback stays until that is understood.
+        """
+        return self._seg.render_segmentation(self.env.data, self._camera_id, with_depth=True)
 
 
 def _target_stage(task, target: str, progress: int) -> int:

@@ -163,6 +163,7 @@ class BavoEnv(gym.Env):
                 -np.inf, np.inf, (self.environment_state_dim,), np.float32)
 
         self._renderer: SceneRenderer | None = None
+        self._observation_depth: np.ndarray | None = None
         self._video_renderer: SceneRenderer | None = None
         self._ctrl = np.zeros(self.model.nu)
         self._elapsed = 0
@@ -360,6 +361,12 @@ class BavoEnv(gym.Env):
     def elapsed_steps(self) -> int:
         return self._elapsed
 
+    @property
+    def observation_depth(self) -> np.ndarray | None:
+        """Z-depth (H, W) float32 metres of the last observation's render (privileged; not part of the
+        observation). The recorder's teacher reuses it instead of reading depth back a second time."""
+        return self._observation_depth
+
     def _render_active(self) -> tuple[np.ndarray, np.ndarray]:
         s = self.obs_settings
         if self._renderer is None:
@@ -369,6 +376,7 @@ class BavoEnv(gym.Env):
     def _observation(self) -> dict:
         s = self.obs_settings
         rgb, depth = self._render_active()
+        self._observation_depth = depth  # a fresh array per render, never written to
         cloud, pixels = build_point_cloud(
             rgb, depth, self._K, self.camera_pose(), s.n_points, frame=s.point_frame,
             workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH, stride=DEFAULT_STRIDE,

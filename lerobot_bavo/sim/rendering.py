@@ -112,16 +112,19 @@ class SceneRenderer:
         finally:
             self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
             self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
-        rgb = np.flipud(self._rgb).astype(np.int32)
-        segid = rgb[..., 0] + rgb[..., 1] * 256 + rgb[..., 2] * 65536 - 1  # index into scene.geoms
+        rgb = self._rgb
+        segid = rgb[..., 0].astype(np.uint32)  # index + 1 into scene.geoms (0: nothing drawn)
+        segid |= rgb[..., 1].astype(np.uint32) << 8
+        segid |= rgb[..., 2].astype(np.uint32) << 16
+        segid -= 1  # nothing drawn wraps to 2**32 - 1
         ngeom = self._scene.ngeom
         lut = np.full(ngeom + 1, -1, dtype=np.int32)
         for i in range(ngeom):
             g = self._scene.geoms[i]
             if g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
                 lut[i] = g.objid
-        segid = np.where((segid >= 0) & (segid < ngeom), segid, ngeom)
-        seg = lut[segid]
+        # ids outside [0, ngeom) (nothing drawn, or not a scene geom) -> lut[ngeom] = -1
+        seg = lut[np.flipud(np.minimum(segid, ngeom, out=segid))]
         if not with_depth:
             return seg
         return seg, np.flipud(self._metric_depth(self._depth)).astype(np.float32)
