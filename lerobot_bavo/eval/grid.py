@@ -219,7 +219,7 @@ def method_results(method: Method, runs: dict[str, dict]) -> dict:
         for cond in method.conditions:
             over_tasks[cond] = aggregate_seeds(
                 {label: mean_over_tasks([res["cells"][f"{t}/{cond}"] for t in method.tasks]) for label, res in runs.items()})
-    return {"checkpoints": {label: res["policy"] for label, res in runs.items()}, "tasks": list(method.tasks),
+    return {"checkpoints": dict(method.checkpoints), "tasks": list(method.tasks),
             "conditions": list(method.conditions), "cells": cells, "mean_over_tasks": over_tasks}
 
 
