@@ -150,3 +150,13 @@ def test_bad_executor_settings_are_refused(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"--executor ray needs Ray, the optional 'ray' extra: pip install "):
         _config(tmp_path / "a", executor="ray")
     assert not (tmp_path / "a").exists()
+
+
+def test_cli_executor_flags(tmp_path, capsys):
+    args = ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "tester/x", "--root", str(tmp_path / "x")]
+    assert collect_module.build_parser().parse_args(args + ["--executor", "ray", "--ray-address", "auto"]).executor == "ray"
+    assert collect_module.main(args + ["--ray-address", "127.0.0.1:6379"]) == 2
+    assert "bavo-collect: error: --ray-address needs --executor ray" in capsys.readouterr().err
+    assert collect_module.main(args + ["--executor", "ray", "--workers", "0"]) == 2
+    assert "--workers must be >= 1 with --executor ray, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
