@@ -19,11 +19,17 @@ import time
 from pathlib import Path
 
 import pytest
+from test_collect_content import (
+    REFERENCE_COLUMNS,
+    REFERENCE_STATS,
+    SETTINGS,
+    STEPS,
+    dataset_digests,
+)
 
 from lerobot_bavo.datasets import collect as collect_module
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 from lerobot_bavo.datasets.staging import ship_job
-from test_collect_content import REFERENCE_COLUMNS, REFERENCE_STATS, SETTINGS, STEPS, dataset_digests
 
 REPO = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent

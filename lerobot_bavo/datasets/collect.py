@@ -460,6 +460,7 @@ class Collector:
         bar = _progress(total=requested, initial=committed, enabled=cfg.progress)
         bar.set_postfix(discarded=len(self.record.discarded))
         pool = self._pool() if committed < requested else None
+        window = pool.max_in_flight if on_ray and pool is not None else max(1, 2 * cfg.workers)
         try:
             while committed < requested:
                 for summary in sched.resolved():  # finished attempts, in seed order
@@ -478,7 +479,7 @@ class Collector:
                     batch, discards = [], []
                     continue
                 for seed in sched.seeds_to_attempt(wanted=requested - committed - len(batch),
-                                                   window=getattr(pool, "max_in_flight", max(1, 2 * cfg.workers))):
+                                                   window=window):
                     sched.submit(pool, job_fn, self._job(seed))
                     run_stats["attempts"] += 1
                 sched.wait()
@@ -620,7 +621,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = CollectConfig(
             task=args.task, condition=args.condition, episodes=args.episodes, repo_id=args.repo_id, root=args.root,
-            workers=args.workers, executor=args.executor, ray_address=args.ray_address, seed=args.seed, commit_every=args.commit_every,
+            workers=args.workers, executor=args.executor, ray_address=args.ray_address, seed=args.seed,
+            commit_every=args.commit_every,
             settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
             episode_length=args.episode_length, keep_failures=args.keep_failures, push_to_hub=args.push_to_hub,
             private=True if args.private else None, progress=not args.no_progress,

@@ -244,9 +244,10 @@ def _columns(results: dict) -> list[tuple[str, str]]:
 def grid_markdown(results: dict) -> str:
     names = {"sr": "SR", "tps": "TPS", "cvg": "CVG"}
     cols = _columns(results)
-    lines = [f"{results['episodes']} episodes per cell (seeds {results['seed']}-{results['seed'] + results['episodes'] - 1}); "
-             "values are mean ± std over training seeds (sample std; one value where a method has one training seed); "
-             "SR, TPS in %, CVG in pp (Random-time only).", ""]
+    last_seed = results["seed"] + results["episodes"] - 1
+    lines = [(f"{results['episodes']} episodes per cell (seeds {results['seed']}-{last_seed}); values are mean ± std "
+              "over training seeds (sample std; one value where a method has one training seed); SR, TPS in %, CVG in "
+              "pp (Random-time only)."), ""]
     lines.append("| method | seeds | task | " + " | ".join(f"{c} {names[m]}" for c, m in cols) + " |")
     lines.append("|---|---|---|" + "---|" * len(cols))
     for name, m in results["methods"].items():
