@@ -1,7 +1,7 @@
 """`bavo-collect`: scripted-expert demonstrations -> a LeRobot v3.0 dataset with cached teacher targets.
 
     bavo-collect --task cube_handoff --condition stage --episodes 100 --repo-id <user>/bavo_cube_handoff \\
-        [--root DIR] [--workers 2] [--push-to-hub]
+        [--root DIR] [--workers 2] [--executor {local,ray} [--ray-address ADDR]] [--push-to-hub]
 
 How it works:
 - Episodes are keyed by seed: attempt k uses seed `--seed` + k for the env (layout, occlusion
@@ -10,6 +10,10 @@ How it works:
 - Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS/torch thread)
   record an episode, compute its teacher targets and stage it as `<root>/.bavo_staging/seed_*.npz`
   plus a `seed_*.json` marker written last (atomic renames).
+- `--executor ray`: every episode rollout is a Ray task instead (on a private local Ray with `--workers`
+  CPUs, or the cluster at `--ray-address`). A Ray worker may be on another machine, so it returns the
+  staged files' bytes and this process writes them into the same staging folder; everything after
+  (the writer, resume, the record) is the same. A worker lost mid-episode is retried by Ray.
 - The main process is the only writer into the LeRobotDataset. Every `--commit-every` episodes it
   opens the dataset with `LeRobotDataset.resume`, appends the staged episodes in seed order,
   `finalize()`s, and only then records them in `meta/bavo_collection.json` (the collection record).
@@ -49,7 +53,7 @@ from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collection_record import CollectionRecord, PendingCommit
 from lerobot_bavo.datasets.hub import SIDECAR
 from lerobot_bavo.datasets.lerobot_private import abandon_writer, skip_noop_image_embedding
-from lerobot_bavo.datasets.staging import load_staged, run_job, seed_of, staged_path
+from lerobot_bavo.datasets.staging import load_staged, receive_shipped, run_job, seed_of, ship_job, staged_path
 from lerobot_bavo.datasets.transaction import SnapshotMissing, WriterSessionSnapshot, remove_stray_dirs
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
@@ -58,6 +62,7 @@ from lerobot_bavo.runtime.pool import WorkerPool
 logger = logging.getLogger("bavo-collect")
 
 STAGING = ".bavo_staging"
+EXECUTORS = ("local", "ray")
 
 
 @dataclass
@@ -69,7 +74,10 @@ class CollectConfig:
         episodes: number of successful episodes wanted in the dataset.
         repo_id: `<user>/<name>`; also the default local folder `$HF_LEROBOT_HOME/<repo_id>`.
         root: local dataset folder (default: LeRobot's).
-        workers: worker processes; 0 runs episodes in this process (tests, debugging).
+        workers: worker processes; 0 runs episodes in this process (tests, debugging). With executor "ray" and
+            no ray_address: the CPUs of the private local Ray (>= 1).
+        executor: "local" (`WorkerPool`) or "ray" (`RayPool`: episode rollouts as Ray tasks).
+        ray_address: with executor "ray", the cluster to use (`ray start --head` prints it); None: a private Ray.
         seed: seed of the first attempt (demonstration seeds should stay clear of eval seeds, 1000+).
         commit_every: episodes appended per LeRobot writer session (resume granularity).
         settings: observation settings (image size, points, frame, fovy).
@@ -90,6 +98,8 @@ class CollectConfig:
     repo_id: str
     root: Path | None = None
     workers: int = 2
+    executor: str = "local"
+    ray_address: str | None = None
     seed: int = 0
     commit_every: int = 10
     settings: ObservationSettings = field(default_factory=ObservationSettings)
@@ -108,6 +118,19 @@ class CollectConfig:
             raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
         if self.workers < 0:
             raise ValueError(f"--workers must be >= 0, got {self.workers}")
+        if self.executor not in EXECUTORS:
+            raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}, got {self.executor!r}")
+        if self.ray_address and self.executor != "ray":
+            raise ValueError("--ray-address needs --executor ray")
+        if self.executor == "ray":
+            if self.workers < 1:
+                raise ValueError(f"--workers must be >= 1 with --executor ray, got {self.workers}")
+            from lerobot_bavo.runtime.ray_pool import RayMissingError, import_ray
+
+            try:
+                import_ray()
+            except RayMissingError as e:
+                raise ValueError(str(e)) from None
         if self.commit_every < 1:
             raise ValueError(f"--commit-every must be >= 1, got {self.commit_every}")
         if self.seed < 0:
@@ -159,10 +182,11 @@ class SeedScheduler:
     to fill a gap below a finished seed.
     """
 
-    def __init__(self, next_seed: int, staged: dict[int, dict]):
+    def __init__(self, next_seed: int, staged: dict[int, dict], receive=None):
         self.next_seed = next_seed  # the first seed not yet resolved
         self.results: dict[int, dict] = dict(staged)  # finished, not yet resolved
         self.in_flight: dict[cf.Future, int] = {}
+        self.receive = receive  # a job's result -> its summary (Ray: writes the shipped files); None: the result
 
     def resolved(self):
         """Finished summaries in seed order, each removed as it is handed out (stop whenever you like)."""
@@ -199,7 +223,8 @@ class SeedScheduler:
         done, _ = cf.wait(list(self.in_flight), return_when=cf.FIRST_COMPLETED)
         for fut in done:
             seed = self.in_flight.pop(fut)
-            self.results[seed] = fut.result()
+            result = fut.result()
+            self.results[seed] = result if self.receive is None else self.receive(result)
 
 
 class Collector:
@@ -427,9 +452,12 @@ class Collector:
         self._open()
         requested = cfg.episodes
         committed = len(self.record.episodes)
-        sched = SeedScheduler(self.record.next_seed, self._scan_staging(self.record.next_seed))
+        on_ray = cfg.executor == "ray"
+        sched = SeedScheduler(self.record.next_seed, self._scan_staging(self.record.next_seed),
+                              receive=(lambda shipped: receive_shipped(shipped, self.staging)) if on_ray else None)
+        job_fn = ship_job if on_ray else run_job
         run_stats = {"started": time.strftime("%Y-%m-%d %H:%M:%S"), "requested": requested,
-                     "committed_before": committed, "workers": cfg.workers, "attempts": 0,
+                     "committed_before": committed, "workers": cfg.workers, "executor": cfg.executor, "attempts": 0,
                      "reused_staged": len(sched.results)}
         timings: dict[str, list] = {}
         batch: list[dict] = []
@@ -437,7 +465,8 @@ class Collector:
         max_discards = int(cfg.max_discard_ratio * requested) + 10
         bar = _progress(total=requested, initial=committed, enabled=cfg.progress)
         bar.set_postfix(discarded=len(self.record.discarded))
-        pool = WorkerPool(cfg.workers) if committed < requested else None
+        pool = self._pool() if committed < requested else None
+        window = pool.max_in_flight if on_ray and pool is not None else max(1, 2 * cfg.workers)
         try:
             while committed < requested:
                 for summary in sched.resolved():  # finished attempts, in seed order
@@ -456,8 +485,8 @@ class Collector:
                     batch, discards = [], []
                     continue
                 for seed in sched.seeds_to_attempt(wanted=requested - committed - len(batch),
-                                                   window=max(1, 2 * cfg.workers)):
-                    sched.submit(pool, run_job, self._job(seed))
+                                                   window=window):
+                    sched.submit(pool, job_fn, self._job(seed))
                     run_stats["attempts"] += 1
                 sched.wait()
         finally:
@@ -466,6 +495,15 @@ class Collector:
                 pool.shutdown(cancel=True, wait=False)
         run_stats["timings"] = timings
         return self._finish(run_stats, time.perf_counter() - t_start)
+
+    def _pool(self):
+        """Where episodes run: `WorkerPool` (local processes) or `RayPool` (Ray tasks; at most 2 x the cluster's
+        CPUs in flight). Ray is imported only for --executor ray."""
+        if self.cfg.executor == "ray":
+            from lerobot_bavo.runtime.ray_pool import RayPool
+
+            return RayPool(self.cfg.workers, address=self.cfg.ray_address)
+        return WorkerPool(self.cfg.workers)
 
     def _job(self, seed: int) -> dict:
         cfg = self.cfg
@@ -541,7 +579,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted")
     p.add_argument("--repo-id", required=True, help="<user>/<name>, e.g. me/bavo_cube_handoff")
     p.add_argument("--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)")
-    p.add_argument("--workers", type=int, default=2, help="worker processes (0: in this process)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="worker processes (0: in this process); with --executor ray and no --ray-address, the CPUs "
+                        "of the private local Ray")
+    p.add_argument("--executor", choices=EXECUTORS, default="local",
+                   help="where episode rollouts run: local worker processes (default) or Ray tasks (needs the 'ray' "
+                        "extra: pip install 'lerobot_env_bavo[ray]'); this process stays the only dataset writer")
+    p.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: start a "
+                        "private local Ray with --workers CPUs")
     p.add_argument("--seed", type=int, default=0, help="seed of the first attempt")
     p.add_argument("--commit-every", type=int, default=10, help="episodes per dataset write session")
     p.add_argument("--image-height", type=int, default=240)
@@ -590,7 +636,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = CollectConfig(
             task=args.task, condition=args.condition, episodes=args.episodes, repo_id=args.repo_id, root=args.root,
-            workers=args.workers, seed=args.seed, commit_every=args.commit_every,
+            workers=args.workers, executor=args.executor, ray_address=args.ray_address, seed=args.seed,
+            commit_every=args.commit_every,
             settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
             episode_length=args.episode_length, keep_failures=args.keep_failures,
             execution_noise=ExecutionNoise(std=args.execution_noise,

@@ -6,6 +6,10 @@ computes its teacher targets and writes `seed_<seed>.npz` (the dataset columns, 
 is kept) and then `seed_<seed>.json` (its summary, the completion marker), both through atomic
 renames. The writer in the main process reads them back (`load_staged`) in seed order.
 
+On Ray (`bavo-collect --executor ray`) a worker may be on another machine, so `ship_job` stages the
+episode in a private temporary folder and returns the staged files' bytes instead; the main process
+writes them into its staging folder (`receive_shipped`), exactly the files `run_job` would have written.
+
 The recorder (env, expert, renderers) is kept per worker process between jobs of the same settings
 (`runtime.pool.ProcessCache`): building it costs far more than a frame.
 """
@@ -91,5 +95,30 @@ def stage_episode(record, staging: Path, kept: bool, cpu0: float | None = None) 
         os.replace(tmp, staged_path(staging, seed, ".npz"))
         summary["stage_s"] = round(time.perf_counter() - t0, 3)
     summary["cpu_s"] = round(time.process_time() - cpu0, 3)
+    write_json_atomic(staged_path(staging, seed, ".json"), summary)
+    return summary
+
+
+def ship_job(job: dict) -> dict:
+    """`run_job` for a worker that may not share the main process's disk (a Ray task): stages the episode in a
+    private temporary folder and returns {"summary", "npz"} (the staged columns' bytes, None when not kept).
+    A retried task (its worker was lost) starts over in a new folder; nothing is left behind on the worker."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="bavo_ship_") as tmp:
+        summary = run_job({**job, "staging": tmp})
+        npz = staged_path(Path(tmp), summary["seed"], ".npz")
+        return {"summary": summary, "npz": npz.read_bytes() if npz.exists() else None}
+
+
+def receive_shipped(shipped: dict, staging: Path) -> dict:
+    """Write a `ship_job` result into `staging` as `run_job` would (columns, then the summary as the completion
+    marker, both through atomic renames); returns the summary."""
+    summary = shipped["summary"]
+    seed = int(summary["seed"])
+    if shipped["npz"] is not None:
+        tmp = staged_path(staging, seed, ".npz.tmp")
+        tmp.write_bytes(shipped["npz"])
+        os.replace(tmp, staged_path(staging, seed, ".npz"))
     write_json_atomic(staged_path(staging, seed, ".json"), summary)
     return summary

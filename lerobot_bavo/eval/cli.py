@@ -29,6 +29,14 @@ every episode as a Ray task (pip install 'lerobot_env_bavo[ray]'), on a private 
 or on the cluster at --ray-address (`ray start --head` prints it). Records are written by this process as
 episodes finish, so resume, the lock and results.json are the same; a Ray worker lost mid-episode is retried.
 
+Grid: `--grid FILE.yaml` runs methods x tasks x conditions x training seeds in one command (the file lists them;
+`configs/grid_expert.yaml` is an example, `lerobot_bavo/eval/grid.py` documents the format). Each (method,
+training seed) is an ordinary run under <output-dir>/runs/<method>/<label>/, so a killed grid re-run with the same
+command does only the unfinished episodes (and cells); <output-dir>/results.json holds every cell, results.md the
+table of mean ± std over training seeds, results.png SR / TPS / CVG per condition. --tasks, --conditions,
+--episodes, --seed and --policy come from the file then; --workers, --executor, --ray-address and --videos apply
+(--videos defaults to 0 with --grid).
+
 Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
 (the privileged scripted expert with camera recovery) or `expert-frozen-camera` (same
 manipulation, camera arm never moves; its CVG is exactly 0 by construction).
@@ -38,6 +46,7 @@ Examples:
       --output-dir outputs/eval/expert
   bavo-eval --policy outputs/train/afar/checkpoints/last/pretrained_model --episodes 20 \\
       --output-dir outputs/eval/afar
+  bavo-eval --grid configs/grid_expert.yaml --output-dir outputs/eval/grid_expert
 """
 
 from __future__ import annotations
@@ -200,6 +209,21 @@ def append_record(log, record: dict) -> None:
 EXECUTORS = ("local", "ray")
 
 
+def _check_executor(executor: str, ray_address: str | None) -> None:
+    """A known executor; --ray-address only with ray; Ray importable for ray (else a message naming the extra)."""
+    if executor not in EXECUTORS:
+        raise SystemExit(f"bavo-eval: --executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if ray_address and executor != "ray":
+        raise SystemExit("bavo-eval: --ray-address needs --executor ray")
+    if executor == "ray":
+        from lerobot_bavo.runtime.ray_pool import RayMissingError, import_ray
+
+        try:
+            import_ray()
+        except RayMissingError as e:
+            raise SystemExit(f"bavo-eval: {e}") from None
+
+
 def _make_pool(executor: str, workers: int, jobs: list, ray_address: str | None):
     """The pool episodes run in: local processes (in-process for one worker), or Ray tasks (`RayPool`; Ray is
     imported only here). Both give `imap(fn, jobs)`; Ray's results come in completion order."""
@@ -236,17 +260,7 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
         raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
                          "nor a LeRobot checkpoint directory containing config.json")
-    if executor not in EXECUTORS:
-        raise SystemExit(f"bavo-eval: --executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
-    if ray_address and executor != "ray":
-        raise SystemExit("bavo-eval: --ray-address needs --executor ray")
-    if executor == "ray":
-        from lerobot_bavo.runtime.ray_pool import RayMissingError, import_ray
-
-        try:
-            import_ray()
-        except RayMissingError as e:
-            raise SystemExit(f"bavo-eval: {e}") from None
+    _check_executor(executor, ray_address)
     if point_frame is not None and point_frame not in POINT_FRAMES:
         raise SystemExit(f"bavo-eval: --point-frame must be base or camera, got {point_frame!r}")
     if output_dir.exists() and not output_dir.is_dir():
@@ -342,12 +356,16 @@ def main(argv: list[str] | None = None) -> None:
 
     parser = argparse.ArgumentParser(prog="bavo-eval", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--policy", required=True,
-                        help="LeRobot checkpoint dir (.../pretrained_model), 'expert' or 'expert-frozen-camera'")
-    parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default: all registered)")
-    parser.add_argument("--conditions", default="clean,stage,random", help="comma-separated conditions")
-    parser.add_argument("--episodes", type=int, default=20, help="episodes per (task, condition) (default 20)")
-    parser.add_argument("--seed", type=int, default=1000, help="first seed (LeRobot's default start seed)")
+    parser.add_argument("--policy", default=None,
+                        help="LeRobot checkpoint dir (.../pretrained_model), 'expert' or 'expert-frozen-camera' "
+                             "(required unless --grid)")
+    parser.add_argument("--grid", type=Path, default=None, metavar="FILE.yaml",
+                        help="run the grid of methods x tasks x conditions x training seeds the file lists (see "
+                             "above and configs/grid_expert.yaml) instead of one --policy")
+    parser.add_argument("--tasks", default=None, help="comma-separated tasks (default: all registered)")
+    parser.add_argument("--conditions", default=None, help="comma-separated conditions (default clean,stage,random)")
+    parser.add_argument("--episodes", type=int, default=None, help="episodes per (task, condition) (default 20)")
+    parser.add_argument("--seed", type=int, default=None, help="first seed (default 1000, LeRobot's start seed)")
     parser.add_argument("--output-dir", type=Path, required=True, help="where results and videos go")
     parser.add_argument("--workers", type=int, default=1,
                         help="parallel worker processes (default 1); with --executor ray and no --ray-address, the "
@@ -358,7 +376,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--ray-address", default=None, metavar="ADDR",
                         help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: "
                              "start a private local Ray with --workers CPUs")
-    parser.add_argument("--videos", type=int, default=1, help="episodes recorded per cell (default 1)")
+    parser.add_argument("--videos", type=int, default=None, help="episodes recorded per cell (default 1; 0 with --grid)")
     parser.add_argument("--rerun", type=Path, default=None, metavar="DIR",
                         help="also write one rerun recording (.rrd) per episode run into DIR (view with bavo-view --rrd)")
     parser.add_argument("--trust-remote-code", action="store_true",
@@ -368,11 +386,37 @@ def main(argv: list[str] | None = None) -> None:
                         help="frame of the env's point clouds when nothing records the checkpoint's (default: the "
                              "frame its training dataset records, else base); a conflicting value is refused")
     args = parser.parse_args(argv)
+    if args.grid is not None:
+        given = [f"--{name.replace('_', '-')}" for name in ("policy", "tasks", "conditions", "episodes", "seed",
+                                                            "point_frame", "rerun") if getattr(args, name) is not None]
+        if given:
+            parser.error(f"{', '.join(given)} cannot be used with --grid (the grid file sets them)")
+    elif args.policy is None:
+        parser.error("--policy (or --grid FILE.yaml) is required")
+    defaults = {"tasks": ",".join(TASKS), "conditions": "clean,stage,random", "episodes": 20, "seed": 1000,
+                "videos": 0 if args.grid is not None else 1}
+    for name, value in defaults.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     for name, low in (("episodes", 1), ("seed", 0), ("workers", 1), ("videos", 0)):
         if getattr(args, name) < low:
             parser.error(f"--{name} must be >= {low}, got {getattr(args, name)}")
     from lerobot_bavo.checkpoints import CheckpointMismatchError, UntrustedCheckpointError
 
+    if args.grid is not None:
+        _check_executor(args.executor, args.ray_address)
+        from lerobot_bavo.eval.grid import GridError, load_grid, run_grid
+
+        try:
+            grid = load_grid(args.grid)
+        except GridError as e:
+            raise SystemExit(f"bavo-eval: {e}") from None
+        try:
+            run_grid(grid, args.output_dir, workers=args.workers, videos=args.videos, executor=args.executor,
+                     ray_address=args.ray_address, trust_remote_code=args.trust_remote_code)
+        except (CheckpointMismatchError, UntrustedCheckpointError) as e:
+            raise SystemExit(f"bavo-eval: {e}") from None
+        return
     try:
         evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
                  args.output_dir, workers=args.workers, videos=args.videos, trust_remote_code=args.trust_remote_code,

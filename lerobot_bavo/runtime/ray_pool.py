@@ -7,6 +7,8 @@ Imported only for `--executor ray`: `--executor local` never imports Ray. Ray is
   of the same job, so the job module's `ProcessCache` (env, policy) is reused across episodes in a Ray
   worker exactly as in a local pool worker; `fn` must be a module-level function of an importable module
   (or defined in `__main__`, which Ray ships by value).
+- `submit(fn, job)` gives a `concurrent.futures.Future` instead (`WorkerPool.submit`'s interface), for
+  `bavo-collect`, which waits on its futures itself; `shutdown` cancels those not finished.
 - Results come back as they finish, in any order (`imap` callers key them by (task, condition, seed)).
   At most `2 x` the cluster's CPUs are in flight, so a stopped run leaves little work queued, and jobs
   start in about their given order (episodes of one cell together: its env stays cached).
@@ -23,6 +25,7 @@ Imported only for `--executor ray`: `--executor local` never imports Ray. Ray is
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -98,7 +101,16 @@ class RayPool:
         self._remote = ray.remote(num_cpus=1, max_retries=max_retries)(_call)
         cpus = int(ray.cluster_resources().get("CPU", workers))
         self.max_in_flight = max(2, 2 * cpus)
-        self._pending: list = []
+        self._pending: list = []  # imap's refs in flight
+        self._submitted: list = []  # submit's (ref, future) pairs not yet seen finished (shutdown cancels them)
+
+    def submit(self, fn: Callable[[dict], Any], job: dict) -> cf.Future:
+        """A `concurrent.futures.Future` of `fn(job)` run as a Ray task (`WorkerPool.submit`'s interface, for
+        `bavo-collect`); a lost worker is retried as in `imap`, an exception of `fn` is the future's exception."""
+        ref = self._remote.remote(fn, job)
+        future = ref.future()
+        self._submitted = [(r, f) for r, f in self._submitted if not f.done()] + [(ref, future)]
+        return future
 
     def imap(self, fn: Callable[[dict], Any], jobs: Iterable[dict]) -> Iterator[Any]:
         """Results of `fn` over `jobs` as each finishes (any order); the first failed job's exception is raised
@@ -130,6 +142,10 @@ class RayPool:
 
     def shutdown(self, cancel: bool = False, wait: bool = True) -> None:  # noqa: ARG002 (WorkerPool's signature)
         self.cancel()
+        for ref, future in self._submitted:
+            if not future.done():
+                self._ray.cancel(ref, force=True)
+        self._submitted = []
         if self._owns_ray and self._ray.is_initialized():
             self._ray.shutdown()
 

@@ -1,0 +1,375 @@
+"""`bavo-eval --grid FILE.yaml`: methods x tasks x conditions x training seeds in one command (issue 15).
+
+A grid file (YAML) names the cells; `configs/grid_expert.yaml` is an example:
+
+    tasks: [cube_handoff, block_stacking]   # default: all registered tasks
+    conditions: [clean, stage, random]      # default: clean, stage, random
+    episodes: 5                             # per (method, training seed, task, condition); default 20
+    seed: 1000                              # first evaluation seed; default 1000
+    methods:
+      expert: expert                        # one policy: expert, expert-frozen-camera or a checkpoint folder
+      afar:                                 # a training-seed axis: one checkpoint per training seed
+        checkpoints: {s1000: outputs/train/afar_s1000/checkpoints/last/pretrained_model,
+                      s1001: outputs/train/afar_s1001/checkpoints/last/pretrained_model}
+        tasks: [cube_handoff]               # optional: this method on fewer tasks / conditions
+      maniflow: [ckpt_seed0, ckpt_seed1]    # a list is a training-seed axis labelled 0, 1, ...
+
+Relative checkpoint paths are resolved against the current directory. Every (method, training seed) is one
+ordinary `bavo-eval` run in `<output-dir>/runs/<method>/<label>/` (its own run.json, episodes.jsonl,
+results.json), so a killed grid re-run with the same command keeps every finished episode and with them every
+finished cell, and runs only what is missing. The grid then writes, in `<output-dir>`:
+
+  results.json  every cell: each training seed's SR / TPS / CVG / Joint and n_episodes, their mean and std over
+                training seeds, and per method and condition the same for the mean over its tasks;
+  results.md    the table: mean ± std over training seeds (std: the sample standard deviation, n - 1; a method
+                with one training seed shows its value alone);
+  results.png   SR / TPS / CVG per condition, one panel per task and the mean over tasks, bars per method with
+                the std over training seeds as error bars.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+GRID_VERSION = 1
+METRICS = ("sr", "tps", "cvg", "joint")
+DEFAULT_CONDITIONS = ("clean", "stage", "random")
+TOP_KEYS = ("tasks", "conditions", "episodes", "seed", "methods")
+METHOD_KEYS = ("checkpoints", "tasks", "conditions")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+class GridError(ValueError):
+    """A grid file that cannot be run; the message names the file and the offending key or value."""
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    checkpoints: dict[str, str]  # training-seed label -> policy (expert name or checkpoint folder, as written)
+    tasks: tuple[str, ...]
+    conditions: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Grid:
+    tasks: tuple[str, ...]
+    conditions: tuple[str, ...]
+    episodes: int
+    seed: int
+    methods: tuple[Method, ...] = field(default_factory=tuple)
+
+    def as_dict(self) -> dict:
+        return {"tasks": list(self.tasks), "conditions": list(self.conditions), "episodes": self.episodes,
+                "seed": self.seed,
+                "methods": {m.name: {"checkpoints": dict(m.checkpoints), "tasks": list(m.tasks),
+                                     "conditions": list(m.conditions)} for m in self.methods}}
+
+
+# ------------------------------------------------------------------ the grid file
+def _names(value, what: str, known, where: str) -> tuple[str, ...]:
+    if isinstance(value, str):
+        value = [v for v in value.split(",") if v]
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        raise GridError(f"{where}: {what} must be a non-empty list of names, got {value!r}")
+    for v in value:
+        if v not in known:
+            raise GridError(f"{where}: unknown {what[:-1]} {v!r}; choose from {', '.join(known)}")
+    if len(set(value)) != len(value):
+        raise GridError(f"{where}: {what} lists a name twice: {value}")
+    return tuple(value)
+
+
+def _checkpoints(value, where: str) -> dict[str, str]:
+    """A method's training-seed axis: one policy (label "0"), a list (labels "0", "1", ...) or label -> policy."""
+    if isinstance(value, str):
+        value = [value]
+    if isinstance(value, list):
+        value = {str(i): v for i, v in enumerate(value)}
+    if not isinstance(value, dict) or not value:
+        raise GridError(f"{where}: give one policy, a list of checkpoints (one per training seed) or a mapping "
+                        f"label -> checkpoint, got {value!r}")
+    out = {}
+    for label, policy in value.items():
+        label = str(label)
+        if not _NAME.match(label):
+            raise GridError(f"{where}: training-seed label {label!r} must be a plain name (letters, digits, _ . + -)")
+        if not isinstance(policy, str) or not policy:
+            raise GridError(f"{where}: checkpoint of {label!r} must be a path or an expert name, got {policy!r}")
+        out[label] = policy
+    return out
+
+
+def check_policy(policy: str, where: str) -> None:
+    """An expert name, or a folder holding a LeRobot checkpoint (config.json); else a `GridError` naming it."""
+    from lerobot_bavo.eval.rollout import EXPERT_POLICIES
+
+    if policy in EXPERT_POLICIES:
+        return
+    path = Path(policy)
+    if not path.exists():
+        raise GridError(f"{where}: checkpoint {policy!r} not found ({path.resolve()}; relative paths are resolved "
+                        f"against the current directory); or use {' / '.join(EXPERT_POLICIES)}")
+    if not (path / "config.json").is_file():
+        raise GridError(f"{where}: {policy!r} is not a LeRobot checkpoint folder (no config.json in {path.resolve()})")
+
+
+def parse_grid(data, source: str = "grid") -> Grid:
+    """Validate a grid (the loaded YAML) and fill its defaults; every error names `source` and the key."""
+    from lerobot_bavo.envs.conditions import CONDITIONS
+    from lerobot_bavo.envs.tasks import TASKS
+
+    if not isinstance(data, dict):
+        raise GridError(f"{source}: a grid file is a mapping with keys {', '.join(TOP_KEYS)}, got {type(data).__name__}")
+    unknown = sorted(set(map(str, data)) - set(TOP_KEYS))
+    if unknown:
+        raise GridError(f"{source}: unknown key {', '.join(map(repr, unknown))}; a grid file has {', '.join(TOP_KEYS)}")
+    tasks = _names(data.get("tasks", list(TASKS)), "tasks", list(TASKS), f"{source}: tasks")
+    conditions = _names(data.get("conditions", list(DEFAULT_CONDITIONS)), "conditions", list(CONDITIONS),
+                        f"{source}: conditions")
+    numbers = {}
+    for key, default, low in (("episodes", 20, 1), ("seed", 1000, 0)):
+        v = data.get(key, default)
+        if not isinstance(v, int) or isinstance(v, bool) or v < low:
+            raise GridError(f"{source}: {key} must be an integer >= {low}, got {v!r}")
+        numbers[key] = v
+    raw = data.get("methods")
+    if not isinstance(raw, dict) or not raw:
+        raise GridError(f"{source}: methods must be a non-empty mapping name -> policy or checkpoints, got {raw!r}")
+    methods = []
+    for name, spec in raw.items():
+        name = str(name)
+        where = f"{source}: methods.{name}"
+        if not _NAME.match(name):
+            raise GridError(f"{where}: a method name must be a plain name (letters, digits, _ . + -)")
+        if isinstance(spec, dict):
+            unknown = sorted(set(map(str, spec)) - set(METHOD_KEYS))
+            if unknown:
+                raise GridError(f"{where}: unknown key {', '.join(map(repr, unknown))}; a method has "
+                                f"{', '.join(METHOD_KEYS)}")
+            if "checkpoints" not in spec:
+                raise GridError(f"{where}: missing key 'checkpoints' (one policy, or one checkpoint per training seed)")
+            m_tasks = _names(spec.get("tasks", list(tasks)), "tasks", list(tasks), f"{where}.tasks (of the grid's)")
+            m_conds = _names(spec.get("conditions", list(conditions)), "conditions", list(conditions),
+                             f"{where}.conditions (of the grid's)")
+            checkpoints = _checkpoints(spec["checkpoints"], f"{where}.checkpoints")
+        else:
+            m_tasks, m_conds = tasks, conditions
+            checkpoints = _checkpoints(spec, where)
+        for label, policy in checkpoints.items():
+            check_policy(policy, f"{where} (training seed {label})")
+        methods.append(Method(name, checkpoints, m_tasks, m_conds))
+    return Grid(tasks, conditions, numbers["episodes"], numbers["seed"], tuple(methods))
+
+
+def load_grid(path: str | Path) -> Grid:
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as e:
+        raise GridError(f"grid file {path}: cannot read it ({e.strerror})") from None
+    except yaml.YAMLError as e:
+        raise GridError(f"grid file {path} is not valid YAML: {e}") from None
+    return parse_grid(data, f"grid file {path}")
+
+
+# ------------------------------------------------------------------ aggregation (pure)
+def mean_std(values: list[float | None]) -> tuple[float | None, float | None]:
+    """Mean and sample standard deviation (n - 1) over training seeds. (None, None) when any value is None (a
+    metric that does not exist for that cell, such as CVG outside Random-time) or there are none; std is None
+    for a single value."""
+    if not values or any(v is None for v in values):
+        return None, None
+    n = len(values)
+    mean = sum(values) / n
+    if n < 2:
+        return mean, None
+    return mean, math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1))
+
+
+def aggregate_seeds(per_seed: dict[str, dict]) -> dict:
+    """One cell over training seeds: `per_seed` label -> {sr, tps, cvg, joint, ...} -> the same plus mean / std."""
+    mean, std = {}, {}
+    for key in METRICS:
+        mean[key], std[key] = mean_std([cell.get(key) for cell in per_seed.values()])
+    return {"seeds": per_seed, "mean": mean, "std": std, "n_seeds": len(per_seed)}
+
+
+def mean_over_tasks(cells: list[dict]) -> dict:
+    """The macro average of one training seed's cells of one condition (None for a metric missing in any)."""
+    return {key: mean_std([c.get(key) for c in cells])[0] for key in METRICS}
+
+
+def method_results(method: Method, runs: dict[str, dict]) -> dict:
+    """A method's grid cells from its runs' results.json (`runs` label -> results)."""
+    cells, over_tasks = {}, {}
+    for task in method.tasks:
+        for cond in method.conditions:
+            key = f"{task}/{cond}"
+            per_seed = {label: {k: v for k, v in res["cells"][key].items() if k != "episodes"}
+                        for label, res in runs.items()}
+            cells[key] = aggregate_seeds(per_seed)
+    if len(method.tasks) > 1:
+        for cond in method.conditions:
+            over_tasks[cond] = aggregate_seeds(
+                {label: mean_over_tasks([res["cells"][f"{t}/{cond}"] for t in method.tasks]) for label, res in runs.items()})
+    return {"checkpoints": dict(method.checkpoints), "tasks": list(method.tasks),
+            "conditions": list(method.conditions), "cells": cells, "mean_over_tasks": over_tasks}
+
+
+# ------------------------------------------------------------------ report
+def fmt_mean_std(mean: float | None, std: float | None) -> str:
+    if mean is None:
+        return "-"
+    return f"{mean:.1f}" if std is None else f"{mean:.1f} ± {std:.1f}"
+
+
+def _columns(results: dict) -> list[tuple[str, str]]:
+    """(condition, metric) columns of the table: SR and TPS per condition, CVG where any cell has one."""
+    cols = []
+    for cond in results["conditions"]:
+        cols += [(cond, "sr"), (cond, "tps")]
+        if any(cell["mean"]["cvg"] is not None for m in results["methods"].values()
+               for key, cell in m["cells"].items() if key.endswith(f"/{cond}")):
+            cols.append((cond, "cvg"))
+    return cols
+
+
+def grid_markdown(results: dict) -> str:
+    names = {"sr": "SR", "tps": "TPS", "cvg": "CVG"}
+    cols = _columns(results)
+    last_seed = results["seed"] + results["episodes"] - 1
+    lines = [(f"{results['episodes']} episodes per cell (seeds {results['seed']}-{last_seed}); values are mean ± std "
+              "over training seeds (sample std; one value where a method has one training seed); SR, TPS in %, CVG in "
+              "pp (Random-time only)."), ""]
+    lines.append("| method | seeds | task | " + " | ".join(f"{c} {names[m]}" for c, m in cols) + " |")
+    lines.append("|---|---|---|" + "---|" * len(cols))
+    for name, m in results["methods"].items():
+        rows = [(t, {c: m["cells"].get(f"{t}/{c}") for c in results["conditions"]}) for t in m["tasks"]]
+        if m["mean_over_tasks"]:
+            rows.append((f"**mean of {len(m['tasks'])}**", m["mean_over_tasks"]))
+        for label, by_cond in rows:
+            vals = [fmt_mean_std(by_cond[c]["mean"][k], by_cond[c]["std"][k]) if by_cond.get(c) else "-" for c, k in cols]
+            lines.append(f"| {name} | {len(m['checkpoints'])} | {label} | " + " | ".join(vals) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def grid_plot(results: dict, path: Path) -> None:
+    """SR / TPS / CVG (rows) per condition, one column per task plus the mean over tasks, a bar per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(results["tasks"])
+    panels = tasks + (["mean over tasks"] if len(tasks) > 1 else [])
+    methods = list(results["methods"])
+    conds = list(results["conditions"])
+    fig, axes = plt.subplots(3, len(panels), figsize=(max(6.0, 2.6 * len(panels) + 1), 7.5), squeeze=False,
+                             sharey="row")
+    width = 0.8 / max(1, len(methods))
+    for col, panel in enumerate(panels):
+        for row, (metric, label) in enumerate((("sr", "SR (%)"), ("tps", "TPS (%)"), ("cvg", "CVG (pp)"))):
+            ax = axes[row][col]
+            for i, name in enumerate(methods):
+                m = results["methods"][name]
+                xs, ys, es = [], [], []
+                for j, cond in enumerate(conds):
+                    if panel == "mean over tasks":
+                        cell = m["mean_over_tasks"].get(cond) if len(m["tasks"]) == len(tasks) else None
+                    else:
+                        cell = m["cells"].get(f"{panel}/{cond}")
+                    if cell is None or cell["mean"][metric] is None:
+                        continue
+                    xs.append(j - 0.4 + width * (i + 0.5))
+                    ys.append(cell["mean"][metric])
+                    es.append(cell["std"][metric] or 0.0)
+                ax.bar(xs, ys, width, yerr=es, capsize=2, color=f"C{i}", label=name if (row, col) == (0, 0) else None)
+            ax.set_xticks(range(len(conds)), conds)
+            ax.set_ylim(0, 105)
+            if col == 0:
+                ax.set_ylabel(label)
+            if row == 0:
+                ax.set_title(panel, fontsize=10)
+    fig.legend(loc="lower center", ncol=max(1, len(methods)), frameon=False)
+    fig.suptitle(f"BAVO-Bench grid: mean ± std over training seeds\n{results['episodes']} episodes per cell "
+                 f"(seeds {results['seed']}-{results['seed'] + results['episodes'] - 1})", fontsize=11)
+    fig.tight_layout(rect=(0, 0.05, 1, 0.96))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------ running it
+def run_dir(output_dir: Path, method: str, label: str) -> Path:
+    return Path(output_dir) / "runs" / method / label
+
+
+def pending_episodes(grid: Grid, output_dir: Path) -> int:
+    """Episodes of the grid not yet in any run's episodes.jsonl (what a run now would do)."""
+    from lerobot_bavo.eval.cli import read_episode_log
+
+    missing = 0
+    for m in grid.methods:
+        for label in m.checkpoints:
+            done = read_episode_log(run_dir(output_dir, m.name, label) / "episodes.jsonl")
+            missing += sum((t, c, grid.seed + i) not in done for t in m.tasks for c in m.conditions
+                           for i in range(grid.episodes))
+    return missing
+
+
+def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, executor: str = "local",
+             ray_address: str | None = None, trust_remote_code: bool = False) -> dict:
+    """Run (or resume) every (method, training seed) of the grid, then write results.json / .md / .png."""
+    import contextlib
+
+    from lerobot_bavo.eval.cli import evaluate
+    from lerobot_bavo.runtime.process import LockedError, exclusive_lock
+
+    output_dir = Path(output_dir)
+    try:
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SystemExit(f"bavo-eval: cannot create --output-dir {output_dir}: {e.strerror}") from None
+    try:
+        lock = exclusive_lock(output_dir, "bavo-eval --grid")
+    except LockedError as e:
+        raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
+    try:
+        (output_dir / "grid.json").write_text(json.dumps(grid.as_dict(), indent=1))
+        pending = pending_episodes(grid, output_dir)
+        total = sum(len(m.checkpoints) * len(m.tasks) * len(m.conditions) for m in grid.methods) * grid.episodes
+        print(f"bavo-eval --grid: {total} episodes in {sum(len(m.checkpoints) for m in grid.methods)} runs; "
+              f"{total - pending} finished, {pending} to run")
+        with contextlib.ExitStack() as stack:
+            if executor == "ray" and pending:  # one Ray for the whole grid (each run's RayPool then uses it)
+                from lerobot_bavo.runtime.ray_pool import RayPool
+
+                stack.enter_context(RayPool(workers, address=ray_address))
+            runs: dict[str, dict[str, dict]] = {}
+            for m in grid.methods:
+                runs[m.name] = {}
+                for label, policy in m.checkpoints.items():
+                    print(f"bavo-eval --grid: method {m.name}, training seed {label}: {policy}")
+                    runs[m.name][label] = evaluate(
+                        policy, list(m.tasks), list(m.conditions), grid.episodes, grid.seed,
+                        run_dir(output_dir, m.name, label), workers=workers, videos=videos,
+                        trust_remote_code=trust_remote_code, executor=executor, ray_address=ray_address)
+        results = {"version": GRID_VERSION, "tasks": list(grid.tasks), "conditions": list(grid.conditions),
+                   "episodes": grid.episodes, "seed": grid.seed,
+                   "methods": {m.name: method_results(m, runs[m.name]) for m in grid.methods}}
+        for name, m in results["methods"].items():
+            m["runs"] = {label: str(run_dir(Path("."), name, label)) for label in m["checkpoints"]}
+        (output_dir / "results.json").write_text(json.dumps(results, indent=1))
+        table = grid_markdown(results)
+        (output_dir / "results.md").write_text(table)
+        grid_plot(results, output_dir / "results.png")
+        print(table)
+        return results
+    finally:
+        lock.close()

@@ -1,0 +1,142 @@
+"""`bavo-eval --grid FILE.yaml` (issue 15): the mean ± std aggregation over training seeds (a pure function, checked
+on hand-computed values), a tiny real grid run twice (the second run does no work and writes the same results; the
+table's mean ± std recomputed by hand from results.json), clear errors for bad grid files, and the grid on Ray
+giving the same results.json as locally (skipped without Ray).
+
+The tiny grid is Cube Handoff under Random-time, 1 episode, methods `expert` and `mix` (two "training seeds": the
+expert and the frozen-camera expert, whose CVG differ, so the std is not 0): 3 scripted episodes, ~15 s on 2 cores.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import statistics
+from pathlib import Path
+
+import pytest
+
+from lerobot_bavo.eval import cli
+from lerobot_bavo.eval.grid import GridError, aggregate_seeds, load_grid, mean_std, parse_grid, run_grid
+
+TINY = {"tasks": ["cube_handoff"], "conditions": ["random"], "episodes": 1, "seed": 1000,
+        "methods": {"expert": "expert", "mix": ["expert", "expert-frozen-camera"]}}
+
+
+def test_mean_std_by_hand():
+    assert mean_std([100.0, 50.0, 75.0]) == (75.0, 25.0)  # sqrt((25^2 + 25^2 + 0) / (3 - 1)) = 25
+    mean, std = mean_std([10.0, 20.0])
+    assert mean == 15.0 and std == pytest.approx(7.0710678)  # sqrt((5^2 + 5^2) / 1)
+    assert mean_std([42.0]) == (42.0, None)  # one training seed: no std
+    assert mean_std([70.0, None]) == (None, None)  # a metric missing in one seed (CVG outside Random-time)
+    assert mean_std([]) == (None, None)
+
+
+def test_aggregate_seeds_by_hand():
+    per_seed = {"s0": {"sr": 100.0, "tps": 100.0, "cvg": 60.0, "joint": 60.0, "n_episodes": 5},
+                "s1": {"sr": 60.0, "tps": 80.0, "cvg": 20.0, "joint": 12.0, "n_episodes": 5}}
+    cell = aggregate_seeds(per_seed)
+    assert cell["n_seeds"] == 2 and cell["seeds"] is per_seed
+    assert cell["mean"] == {"sr": 80.0, "tps": 90.0, "cvg": 40.0, "joint": 36.0}
+    assert cell["std"]["sr"] == pytest.approx(28.2842712)  # |100 - 60| / sqrt(2)
+    assert cell["std"]["tps"] == pytest.approx(14.1421356)
+    assert cell["std"]["cvg"] == pytest.approx(28.2842712)
+    assert cell["std"]["joint"] == pytest.approx(33.9411255)  # |60 - 12| / sqrt(2)
+
+
+def _write(path: Path, grid: dict) -> Path:
+    import yaml
+
+    path.write_text(yaml.safe_dump(grid))
+    return path
+
+
+def test_tiny_grid_resumes_and_reports_mean_std(tmp_path, monkeypatch, capsys):
+    grid = load_grid(_write(tmp_path / "grid.yaml", TINY))
+    out = tmp_path / "grid"
+    first = run_grid(grid, out)
+    assert "3 to run" in capsys.readouterr().out
+
+    def no_work(job):
+        raise AssertionError(f"episode {job['seed']} of {job['policy']} ran again")
+
+    monkeypatch.setattr(cli, "_run_job", no_work)
+    second = run_grid(grid, out)  # the same command again: every cell is finished
+    assert "3 finished, 0 to run" in capsys.readouterr().out
+    assert second == first
+    results = json.loads((out / "results.json").read_text())
+    assert results == first
+    assert (out / "results.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for label in ("0", "1"):
+        assert (out / "runs" / "mix" / label / "episodes.jsonl").read_text().count("\n") == 1
+
+    # the table, recomputed by hand from the per-seed values in results.json
+    seeds = results["methods"]["mix"]["cells"]["cube_handoff/random"]["seeds"]
+    assert results["methods"]["mix"]["checkpoints"] == {"0": "expert", "1": "expert-frozen-camera"}
+    assert seeds["1"]["cvg"] == 0.0 and seeds["0"]["cvg"] > 0  # the frozen camera never recovers the view
+    row = next(line for line in (out / "results.md").read_text().splitlines() if line.startswith("| mix |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[:3] == ["mix", "2", "cube_handoff"]
+    expected = []
+    for metric in ("sr", "tps", "cvg"):
+        values = [seeds[label][metric] for label in ("0", "1")]
+        expected.append(f"{statistics.mean(values):.1f} ± {statistics.stdev(values):.1f}")
+    assert cells[3:] == expected
+    expert_row = next(line for line in (out / "results.md").read_text().splitlines() if line.startswith("| expert |"))
+    cvg = results["methods"]["expert"]["cells"]["cube_handoff/random"]["seeds"]["0"]["cvg"]
+    assert expert_row.rstrip(" |").endswith(f"| {cvg:.1f}")  # one training seed: the value alone
+    assert "±" not in expert_row
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"tasks": ["cube_handof"]}, r"unknown task 'cube_handof'; choose from cube_handoff"),
+    ({"conditions": ["clean", "fog"]}, r"unknown condition 'fog'"),
+    ({"episode": 3}, r"unknown key 'episode'"),
+    ({"episodes": 0}, r"episodes must be an integer >= 1, got 0"),
+    ({"methods": {"afar": {"checkpoint": "expert"}}}, r"methods.afar: unknown key 'checkpoint'"),
+    ({"methods": {"afar": {"tasks": ["cube_handoff"]}}}, r"methods.afar: missing key 'checkpoints'"),
+    ({"methods": {"afar": "no/such/ckpt"}}, r"methods.afar \(training seed 0\): checkpoint 'no/such/ckpt' not found"),
+    ({"methods": {"afar": {"checkpoints": {"s1": "expert", "s2": "no/such"}}}},
+     r"methods.afar \(training seed s2\): checkpoint 'no/such' not found"),
+    ({"methods": {"e": {"checkpoints": "expert", "conditions": ["stage"]}}},
+     r"methods.e.conditions \(of the grid's\): unknown condition 'stage'"),
+    ({"methods": {"a/b": "expert"}}, r"a method name must be a plain name"),
+    ({"methods": {}}, r"methods must be a non-empty mapping"),
+])
+def test_bad_grid_files_are_named(change, message):
+    with pytest.raises(GridError, match=r"^grid: .*" + message):
+        parse_grid({**TINY, **change})
+
+
+def test_a_folder_without_config_json_is_not_a_checkpoint(tmp_path):
+    with pytest.raises(GridError, match=re.escape(f"no config.json in {tmp_path.resolve()}")):
+        parse_grid({**TINY, "methods": {"afar": str(tmp_path)}})
+
+
+def test_cli_grid_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("methods: [expert\n")
+    with pytest.raises(SystemExit, match=r"bavo-eval: grid file .*bad.yaml is not valid YAML"):
+        cli.main(["--grid", str(bad), "--output-dir", str(tmp_path / "out")])
+    with pytest.raises(SystemExit, match=r"bavo-eval: grid file .*: unknown task 'nope'"):
+        cli.main(["--grid", str(_write(tmp_path / "g.yaml", {**TINY, "tasks": ["nope"]})),
+                  "--output-dir", str(tmp_path / "out")])
+    with pytest.raises(SystemExit):  # the file sets the policy and the episodes
+        cli.main(["--grid", str(bad), "--policy", "expert", "--episodes", "3", "--output-dir", str(tmp_path / "o")])
+    assert "--policy, --episodes cannot be used with --grid" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["--output-dir", str(tmp_path / "o")])
+    assert "--policy (or --grid FILE.yaml) is required" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "o").exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None,
+                    reason="Ray is not installed (the optional extra: pip install 'lerobot_env_bavo[ray]')")
+def test_grid_on_ray_gives_the_same_results_as_local(tmp_path):
+    """One scripted-expert episode of Cube Handoff (clean) per method, on a private 1-CPU Ray and locally."""
+    grid = parse_grid({**TINY, "conditions": ["clean"], "methods": {"expert": "expert"}})
+    local = run_grid(grid, tmp_path / "local")
+    on_ray = run_grid(grid, tmp_path / "ray", executor="ray")
+    assert on_ray == local
+    assert json.loads((tmp_path / "ray" / "results.json").read_text()) == local
