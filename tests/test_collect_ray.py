@@ -26,6 +26,7 @@ from test_collect_content import (
     STEPS,
     dataset_digests,
 )
+from test_ray_executor import start_local_ray
 
 from lerobot_bavo.datasets import collect as collect_module
 from lerobot_bavo.datasets.collect import CollectConfig, collect
@@ -55,19 +56,7 @@ def _config(root: Path, episodes: int = 2, **kw) -> CollectConfig:
 
 @pytest.fixture(scope="module")
 def local_ray(tmp_path_factory):
-    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'lerobot_env_bavo[ray]')")
-    marks = tmp_path_factory.mktemp("marks")
-    saved = dict(os.environ)
-    os.environ.update({"PYTHONPATH": os.pathsep.join([str(REPO), str(HERE), os.environ.get("PYTHONPATH", "")]),
-                       MARKS_ENV: str(marks), "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
-                       "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
-    try:  # the workers inherit the environment Ray starts with
-        ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", logging_level="WARNING")
-    finally:
-        os.environ.clear()
-        os.environ.update(saved)
-    yield ray, marks
-    ray.shutdown()
+    yield from start_local_ray(tmp_path_factory, MARKS_ENV)
 
 
 @pytest.fixture(scope="module")

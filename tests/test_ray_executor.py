@@ -42,13 +42,15 @@ def fake_job(job: dict) -> dict:
             "progress": 5, "steps": 300, "pid": os.getpid()}
 
 
-@pytest.fixture(scope="module")
-def local_ray(tmp_path_factory):
+def start_local_ray(tmp_path_factory, marks_env: str):
+    """A loopback-only local Ray with 2 CPUs whose workers import this repository and the test modules and
+    find a fresh marks folder in $`marks_env`; yields (ray, marks folder) and shuts Ray down afterwards.
+    Shared with tests/test_collect_ray.py."""
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'lerobot_env_bavo[ray]')")
     marks = tmp_path_factory.mktemp("marks")
     saved = dict(os.environ)
     os.environ.update({"PYTHONPATH": os.pathsep.join([str(REPO), str(HERE), os.environ.get("PYTHONPATH", "")]),
-                       MARKS_ENV: str(marks), "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+                       marks_env: str(marks), "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
                        "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
     try:  # the workers inherit the environment Ray starts with
         ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", logging_level="WARNING")
@@ -57,6 +59,11 @@ def local_ray(tmp_path_factory):
         os.environ.update(saved)
     yield ray, marks
     ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def local_ray(tmp_path_factory):
+    yield from start_local_ray(tmp_path_factory, MARKS_ENV)
 
 
 def _marks(marks: Path) -> dict[int, list[int]]:

@@ -52,17 +52,30 @@ import numpy as np
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collection_record import CollectionRecord, PendingCommit
 from lerobot_bavo.datasets.hub import SIDECAR
-from lerobot_bavo.datasets.lerobot_private import abandon_writer, skip_noop_image_embedding
-from lerobot_bavo.datasets.staging import load_staged, receive_shipped, run_job, seed_of, ship_job, staged_path
-from lerobot_bavo.datasets.transaction import SnapshotMissing, WriterSessionSnapshot, remove_stray_dirs
+from lerobot_bavo.datasets.lerobot_private import (
+    abandon_writer,
+    skip_noop_image_embedding,
+)
+from lerobot_bavo.datasets.staging import (
+    load_staged,
+    receive_shipped,
+    run_job,
+    seed_of,
+    ship_job,
+    staged_path,
+)
+from lerobot_bavo.datasets.transaction import (
+    SnapshotMissing,
+    WriterSessionSnapshot,
+    remove_stray_dirs,
+)
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
-from lerobot_bavo.runtime.pool import WorkerPool
+from lerobot_bavo.runtime.pool import EXECUTORS, WorkerPool, add_executor_arguments
 
 logger = logging.getLogger("bavo-collect")
 
 STAGING = ".bavo_staging"
-EXECUTORS = ("local", "ray")
 
 
 @dataclass
@@ -579,15 +592,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted")
     p.add_argument("--repo-id", required=True, help="<user>/<name>, e.g. me/bavo_cube_handoff")
     p.add_argument("--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)")
-    p.add_argument("--workers", type=int, default=2,
-                   help="worker processes (0: in this process); with --executor ray and no --ray-address, the CPUs "
-                        "of the private local Ray")
-    p.add_argument("--executor", choices=EXECUTORS, default="local",
-                   help="where episode rollouts run: local worker processes (default) or Ray tasks (needs the 'ray' "
-                        "extra: pip install 'lerobot_env_bavo[ray]'); this process stays the only dataset writer")
-    p.add_argument("--ray-address", default=None, metavar="ADDR",
-                   help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: start a "
-                        "private local Ray with --workers CPUs")
+    add_executor_arguments(p, 2, "worker processes (0: in this process)",
+                           "where episode rollouts run: local worker processes (default) or Ray tasks, this process "
+                           "staying the only dataset writer")
     p.add_argument("--seed", type=int, default=0, help="seed of the first attempt")
     p.add_argument("--commit-every", type=int, default=10, help="episodes per dataset write session")
     p.add_argument("--image-height", type=int, default=240)

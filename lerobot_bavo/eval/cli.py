@@ -56,7 +56,7 @@ import json
 import time
 from pathlib import Path
 
-from lerobot_bavo.runtime.pool import ProcessCache, WorkerPool
+from lerobot_bavo.runtime.pool import EXECUTORS, ProcessCache, WorkerPool, add_executor_arguments
 
 RESULTS_VERSION = 1
 
@@ -206,7 +206,6 @@ def append_record(log, record: dict) -> None:
                          "command: finished episodes are kept and the cut-off last line is dropped") from None
 
 
-EXECUTORS = ("local", "ray")
 
 
 def _check_executor(executor: str, ray_address: str | None) -> None:
@@ -367,15 +366,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=None, help="episodes per (task, condition) (default 20)")
     parser.add_argument("--seed", type=int, default=None, help="first seed (default 1000, LeRobot's start seed)")
     parser.add_argument("--output-dir", type=Path, required=True, help="where results and videos go")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="parallel worker processes (default 1); with --executor ray and no --ray-address, the "
-                             "CPUs of the private local Ray")
-    parser.add_argument("--executor", choices=EXECUTORS, default="local",
-                        help="where episodes run: local worker processes (default) or Ray tasks (needs the 'ray' "
-                             "extra: pip install 'lerobot_env_bavo[ray]')")
-    parser.add_argument("--ray-address", default=None, metavar="ADDR",
-                        help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: "
-                             "start a private local Ray with --workers CPUs")
+    add_executor_arguments(parser, 1, "parallel worker processes (default 1)",
+                           "where episodes run: local worker processes (default) or Ray tasks")
     parser.add_argument("--videos", type=int, default=None, help="episodes recorded per cell (default 1; 0 with --grid)")
     parser.add_argument("--rerun", type=Path, default=None, metavar="DIR",
                         help="also write one rerun recording (.rrd) per episode run into DIR (view with bavo-view --rrd)")
