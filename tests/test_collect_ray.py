@@ -11,10 +11,7 @@ on 2 cores.
 
 from __future__ import annotations
 
-import importlib.util
 import os
-import signal
-import threading
 import time
 from pathlib import Path
 
@@ -26,18 +23,20 @@ from test_collect_content import (
     STEPS,
     dataset_digests,
 )
-from test_ray_executor import start_local_ray
+from test_ray_executor import (
+    clear_marks,
+    marked_starts,
+    needs_ray,
+    start_killer,
+    start_local_ray,
+)
 
 from lerobot_bavo.datasets import collect as collect_module
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 from lerobot_bavo.datasets.staging import ship_job
 
-REPO = Path(__file__).resolve().parents[1]
-HERE = Path(__file__).resolve().parent
 MARKS_ENV = "BAVO_TEST_COLLECT_MARKS"
 
-needs_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None,
-                               reason="Ray is not installed (the optional extra: pip install 'lerobot_env_bavo[ray]')")
 
 
 def marked_ship_job(job: dict) -> dict:
@@ -66,14 +65,6 @@ def local_dataset(tmp_path_factory) -> Path:
     return root
 
 
-def _marks(marks: Path) -> dict[int, list[int]]:
-    out: dict[int, list[int]] = {}
-    for f in marks.iterdir():
-        seed, pid = f.name.split(".")
-        out.setdefault(int(seed), []).append(int(pid))
-    return out
-
-
 def _episode_seeds(root: Path) -> list[int]:
     import json
 
@@ -97,27 +88,15 @@ def test_a_killed_ray_worker_loses_and_duplicates_nothing(local_ray, local_datas
     """SIGKILL the Ray worker recording seed 1 mid-episode: Ray runs it again in another worker; the dataset has
     seeds 0 and 1 once each and is identical to the local one."""
     _, marks = local_ray
-    for f in marks.iterdir():
-        f.unlink()
+    clear_marks(marks)
     monkeypatch.setattr(collect_module, "ship_job", marked_ship_job)
-    victim, killed = 1, []
-
-    def kill_when_started() -> None:
-        deadline = time.time() + 120
-        while time.time() < deadline and not killed:
-            started = _marks(marks).get(victim)
-            if started:
-                os.kill(started[0], signal.SIGKILL)
-                killed.append(started[0])
-            time.sleep(0.02)
-
-    killer = threading.Thread(target=kill_when_started, daemon=True)
-    killer.start()
+    victim = 1
+    killer, killed = start_killer(marks, victim)
     root = tmp_path / "bavo_ray"
     summary = collect(_config(root, workers=2, executor="ray"))
     killer.join(timeout=5)
     assert killed, "the victim episode never started"
-    started = _marks(marks)
+    started = marked_starts(marks)
     assert len(started[victim]) == 2 and killed[0] in started[victim], started  # killed once, run again
     assert len(started[0]) == 1
     assert summary["episodes"] == 2 and summary["attempts_this_run"] == 2

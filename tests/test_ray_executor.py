@@ -66,7 +66,7 @@ def local_ray(tmp_path_factory):
     yield from start_local_ray(tmp_path_factory, MARKS_ENV)
 
 
-def _marks(marks: Path) -> dict[int, list[int]]:
+def marked_starts(marks: Path) -> dict[int, list[int]]:
     """seed -> the pids that started it."""
     out: dict[int, list[int]] = {}
     for f in marks.iterdir():
@@ -75,7 +75,26 @@ def _marks(marks: Path) -> dict[int, list[int]]:
     return out
 
 
-def _clear(marks: Path) -> None:
+def start_killer(marks: Path, victim: int, timeout_s: float = 120.0) -> tuple[threading.Thread, list[int]]:
+    """A thread that SIGKILLs the first process marked as having started seed `victim` (once); returns the
+    thread and the list it appends the killed pid to."""
+    killed: list[int] = []
+
+    def kill_when_started() -> None:
+        deadline = time.time() + timeout_s
+        while time.time() < deadline and not killed:
+            started = marked_starts(marks).get(victim)
+            if started:
+                os.kill(started[0], signal.SIGKILL)
+                killed.append(started[0])
+            time.sleep(0.02)
+
+    killer = threading.Thread(target=kill_when_started, daemon=True)
+    killer.start()
+    return killer, killed
+
+
+def clear_marks(marks: Path) -> None:
     for f in marks.iterdir():
         f.unlink()
 
@@ -112,14 +131,14 @@ def test_ray_resumes_like_local(local_ray, tmp_path, monkeypatch, capsys):
     _, marks = local_ray
     monkeypatch.setattr(cli, "_run_job", fake_job)
     monkeypatch.setenv(MARKS_ENV, str(marks))  # for the in-process local run
-    _clear(marks)
+    clear_marks(marks)
     out = tmp_path / "eval"
     kw = dict(policy="expert", tasks=["cube_handoff"], conditions=["clean"], seed=1000, videos=0, output_dir=out)
     cli.evaluate(**kw, episodes=3, executor="local")
-    _clear(marks)
+    clear_marks(marks)
     results = cli.evaluate(**kw, episodes=6, executor="ray")
     assert "3 finished episodes kept, 3 to run" in capsys.readouterr().out
-    assert sorted(_marks(marks)) == [1003, 1004, 1005]
+    assert sorted(marked_starts(marks)) == [1003, 1004, 1005]
     assert sorted(_log_seeds(out)) == list(range(1000, 1006))
     assert results["cells"]["cube_handoff/clean"]["n_episodes"] == 6
 
@@ -132,27 +151,15 @@ def test_a_killed_ray_worker_is_retried_and_nothing_is_lost_or_duplicated(local_
 
     _, marks = local_ray
     monkeypatch.setattr(cli, "_run_job", fake_job)
-    _clear(marks)
+    clear_marks(marks)
     victim = 1003
-    killed: list[int] = []
-
-    def kill_when_started() -> None:
-        deadline = time.time() + 120
-        while time.time() < deadline and not killed:
-            started = _marks(marks).get(victim)
-            if started:
-                os.kill(started[0], signal.SIGKILL)
-                killed.append(started[0])
-            time.sleep(0.02)
-
-    killer = threading.Thread(target=kill_when_started, daemon=True)
-    killer.start()
+    killer, killed = start_killer(marks, victim)
     out = tmp_path / "eval"
     results = cli.evaluate("expert", ["cube_handoff"], ["clean"], episodes=8, seed=1000, output_dir=out, videos=0,
                            executor="ray")
     killer.join(timeout=5)
     assert killed, "the victim episode never started"
-    started = _marks(marks)
+    started = marked_starts(marks)
     assert len(started[victim]) == 2 and killed[0] in started[victim], started  # killed once, run again elsewhere
     seeds = _log_seeds(out)
     assert sorted(seeds) == list(range(1000, 1008)), seeds  # none lost, none twice

@@ -248,7 +248,6 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     from lerobot_bavo.envs.tasks import TASKS
     from lerobot_bavo.eval.rollout import EXPERT_POLICIES
     from lerobot_bavo.features import POINT_FRAMES
-    from lerobot_bavo.runtime.process import LockedError, exclusive_lock
 
     for t in tasks:
         if t not in TASKS:
@@ -277,19 +276,27 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     env_kwargs = env_kwargs_for_run(policy, point_frame)
     settings["point_frame"] = env_kwargs.get("point_frame", "base")
 
-    try:
-        output_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:  # e.g. a parent that is a file
-        raise SystemExit(f"bavo-eval: cannot create --output-dir {output_dir}: {e.strerror}") from None
-    try:
-        lock = exclusive_lock(output_dir, "bavo-eval")
-    except LockedError as e:
-        raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
+    lock = claim_output_dir(output_dir, "bavo-eval")
     try:
         return _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed,
                                 output_dir, workers, videos, trust_remote_code, tqdm, rerun_dir, executor, ray_address)
     finally:
         lock.close()
+
+
+def claim_output_dir(output_dir: Path, holder: str):
+    """Create `output_dir` and take its exclusive lock (one bavo-eval run or grid per folder); returns the lock
+    to close when done. Errors name the folder and say what to do."""
+    from lerobot_bavo.runtime.process import LockedError, exclusive_lock
+
+    try:
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # e.g. a parent that is a file
+        raise SystemExit(f"bavo-eval: cannot create --output-dir {output_dir}: {e.strerror}") from None
+    try:
+        return exclusive_lock(output_dir, holder)
+    except LockedError as e:
+        raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
 
 
 def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed, output_dir, workers,

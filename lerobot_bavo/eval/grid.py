@@ -328,18 +328,10 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
     """Run (or resume) every (method, training seed) of the grid, then write results.json / .md / .png."""
     import contextlib
 
-    from lerobot_bavo.eval.cli import evaluate
-    from lerobot_bavo.runtime.process import LockedError, exclusive_lock
+    from lerobot_bavo.eval.cli import claim_output_dir, evaluate
 
     output_dir = Path(output_dir)
-    try:
-        output_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise SystemExit(f"bavo-eval: cannot create --output-dir {output_dir}: {e.strerror}") from None
-    try:
-        lock = exclusive_lock(output_dir, "bavo-eval --grid")
-    except LockedError as e:
-        raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
+    lock = claim_output_dir(output_dir, "bavo-eval --grid")
     try:
         (output_dir / "grid.json").write_text(json.dumps(grid.as_dict(), indent=1))
         pending = pending_episodes(grid, output_dir)
