@@ -59,8 +59,8 @@ def record(args) -> None:
         while True:
             action = np.asarray(expert.act(obs, info), dtype=np.float32)
             ep["S"].append(obs["agent_pos"]), ep["E"].append(obs["environment_state"]), ep["A"].append(action)
-            quiet = noise.clean_contacts and expert.phase in expert.contact_phases
-            obs, _, terminated, truncated, info = env.step(process.perturb(action, quiet) if noise.enabled else action)
+            executed = process.perturb(action, quiet=noise.quiet_for(expert)) if noise.enabled else action
+            obs, _, terminated, truncated, info = env.step(executed)
             if terminated or truncated:
                 break
         if info["is_success"]:

@@ -105,3 +105,14 @@ def test_cube_handoff_contact_phases_are_phases_of_its_expert():
     source = inspect.getsource(CubeHandoffExpert.script)
     for phase in CubeHandoffExpert.contact_phases:
         assert f'phase="{phase}"' in source, phase
+
+
+def test_quiet_only_in_declared_contact_phases_and_only_when_asked():
+    from types import SimpleNamespace
+
+    grasping = SimpleNamespace(phase="grasp", contact_phases=frozenset({"grasp"}))
+    reaching = SimpleNamespace(phase="reach", contact_phases=frozenset({"grasp"}))
+    assert ExecutionNoise(std=0.01, clean_contacts=True).quiet_for(grasping)
+    assert not ExecutionNoise(std=0.01, clean_contacts=True).quiet_for(reaching)
+    assert not ExecutionNoise(std=0.01).quiet_for(grasping)  # off by default
+    assert not ExecutionNoise(std=0.01, clean_contacts=True).quiet_for(SimpleNamespace())  # no phases: never

@@ -607,7 +607,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="DART-style demonstrations: execute the expert's arm joint targets plus a slowly varying "
                         "random offset of this standard deviation in radians (AR(1), correlation 0.9 per step; "
                         "grippers and camera untouched) while recording its clean targets, so the data show "
-                        "corrections back to the plan. 0 (default): off. 0.01 measured best on cube_handoff")
+                        "corrections back to the plan. 0 (default): off. The cube_handoff runs used 0.01")
     p.add_argument("--execution-noise-clean-contacts", action="store_true",
                    help="with --execution-noise: no noise during the expert's approach/grasp/release phases "
                         "(its `contact_phases`)")

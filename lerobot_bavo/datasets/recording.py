@@ -162,9 +162,7 @@ class EpisodeRecorder:
             rows["action"].append(action)
             rows["occlusion_active"].append(float(expert.recovering))
             if noise is not None:  # DART: execute the perturbed targets, keep the clean ones (contact phases stay clean)
-                quiet = execution_noise.clean_contacts and getattr(expert, "phase", None) in getattr(
-                    expert, "contact_phases", ())
-                action = noise.perturb(action, quiet=quiet)
+                action = noise.perturb(action, quiet=execution_noise.quiet_for(expert))
             obs, _, terminated, truncated, info = env.step(action)
             if terminated or truncated or getattr(expert, "stop_requested", False):
                 break

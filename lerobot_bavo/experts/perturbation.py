@@ -4,8 +4,9 @@ Learning", CoRL 2017).
 Why: the scripted experts never make a mistake, so their demonstrations only show states on the
 expert's own path. A cloned policy that drifts a centimetre off that path sees states no
 demonstration contains, and its errors compound (measured on Cube Handoff, privileged-state MLP,
-20 Clean episodes: 4/20 successes from 40 clean demonstrations, 9/20 from 40 demonstrations
-recorded with this noise at 0.01 rad; `docs/results/ladder_cube_handoff.md`). With execution
+20 Clean episodes: 4/20 successes from 40 clean demonstrations, 5/20 and 9/20 from 40
+demonstrations recorded with this noise at 0.01 rad, two noise draws;
+`docs/results/ladder_cube_handoff.md`). With execution
 noise, the env executes the expert's joint targets plus a slowly varying random offset, while the
 dataset records the expert's clean targets; because the experts plan in their own commanded
 joint space (not from the perturbed measured state) and re-plan each phase from the objects'
@@ -51,9 +52,9 @@ class ExecutionNoise:
     """DART-style noise on the executed arm joint targets (see the module docstring).
 
     Args:
-        std: stationary standard deviation of each joint's offset, radians (0: no noise). 0.01 rad
-            (~5 mm at the gripper) was measured best on Cube Handoff; 0.03 rad made the expert fail
-            every episode.
+        std: stationary standard deviation of each joint's offset, radians (0: no noise). The Cube
+            Handoff runs used 0.01 rad (~5 mm at the gripper); 0.03 rad made the expert fail every
+            episode. No other value was tried.
         correlation: per-control-step AR(1) coefficient in [0, 1).
         clean_contacts: no noise during the expert's `contact_phases`.
     """
@@ -74,6 +75,11 @@ class ExecutionNoise:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def quiet_for(self, agent) -> bool:
+        """Whether `agent`'s current step is executed clean: `clean_contacts` and the agent (an expert, after
+        its `act`) is in one of its `contact_phases`. Agents without phases are never quiet."""
+        return self.clean_contacts and getattr(agent, "phase", None) in getattr(agent, "contact_phases", ())
 
     def process(self, seed: int) -> JointNoise:
         """The noise of one episode, drawn from its own generator seeded by the episode seed (never a
