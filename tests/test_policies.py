@@ -385,7 +385,7 @@ def test_ema_update_follows_decay_schedule():
 
 def test_inference_modulation_cache_is_exact_and_invalidated():
     torch.manual_seed(0)
-    policy = make_maniflow(clip_actions=False).eval()  # compares raw Euler samples
+    policy = make_maniflow(clip_actions=False, binary_action_dims=()).eval()  # compares raw Euler samples
     randomize_zero_init(policy)
     model = policy.ema_model
     batch = synthetic_batch(b=3, teacher=False)
@@ -647,11 +647,41 @@ def test_afar_fusion_gate_has_its_own_optimizer_group():
     assert AfarConfig(preset="paper").fusion_gate_lr_scale == 1.0 and AfarConfig(preset="cpu_fast").fusion_gate_lr_scale == 10.0
 
 
+def test_gripper_dims_are_snapped_to_open_or_closed_and_nothing_else_changes():
+    """binary_action_dims (default: BAVO's grippers, 6 and 13) snaps each sampled normalised gripper command to
+    the nearer end of its range, -1 (closed) or +1 (open); every other dimension is the plain sample. Checked
+    against the same weights and noise with snapping off, and by hand on a small tensor."""
+    from lerobot_bavo.policies.maniflow.modeling_maniflow import snap_binary_dims
+    from lerobot_bavo.sim.constants import GRIPPER_INDICES
+
+    x = torch.tensor([[0.3, -0.2, 0.0, -1.0, 0.95]])
+    torch.testing.assert_close(snap_binary_dims(x, (0, 1, 2)), torch.tensor([[1.0, -1.0, -1.0, -1.0, 0.95]]))
+    assert snap_binary_dims(x, ()) is x
+    torch.manual_seed(0)
+    snapped, plain = make_maniflow(), make_maniflow(binary_action_dims=())
+    assert snapped.config.binary_action_dims == GRIPPER_INDICES == (6, 13)
+    randomize_zero_init(snapped, seed=0)
+    plain.load_state_dict(snapped.state_dict())
+    batch = synthetic_batch(b=4, teacher=False)
+    noise = torch.randn(4, 16, ACTION_DIM, generator=torch.Generator().manual_seed(3))
+    a, b = snapped.generate_actions(batch, noise=noise), plain.generate_actions(batch, noise=noise)
+    grip = list(GRIPPER_INDICES)
+    torch.testing.assert_close(a[..., grip], torch.where(b[..., grip] > 0, 1.0, -1.0))
+    others = [d for d in range(ACTION_DIM) if d not in grip]
+    torch.testing.assert_close(a[..., others], b[..., others], rtol=0, atol=0)
+    assert make_afar().config.binary_action_dims == (6, 13)  # A-FAR inherits it
+    with pytest.raises(ValueError, match="binary_action_dims"):
+        make_maniflow(binary_action_dims=(21,))
+    with pytest.raises(ValueError, match="binary_action_dims"):
+        make_maniflow(clip_actions=False,
+                      normalization_mapping={"VISUAL": "IDENTITY", "STATE": "MIN_MAX", "ACTION": "MEAN_STD"})
+
+
 def test_sampled_chunks_are_clipped_to_the_normalised_data_range():
     """A 1-2 step flow sample can leave [-1, 1]; with clip_actions (default) the chunk is clamped there, and
     without it the raw sample comes back unchanged. A large random init makes the raw sample overshoot."""
     torch.manual_seed(0)
-    clipped, raw = make_maniflow(), make_maniflow(clip_actions=False)
+    clipped, raw = make_maniflow(binary_action_dims=()), make_maniflow(clip_actions=False, binary_action_dims=())
     randomize_zero_init(clipped, seed=0)
     raw.load_state_dict(clipped.state_dict())
     for p in clipped.ema_model.parameters():

@@ -241,6 +241,18 @@ class DiTX(nn.Module):
 # --------------------------------------------------------------------------------------------------------------
 
 
+def snap_binary_dims(actions: Tensor, dims: tuple[int, ...]) -> Tensor:
+    """MIN_MAX-normalised actions (..., A) with the given dimensions snapped to the nearer end of their range:
+    > 0 -> +1, else -1 (for a gripper command: fully open or fully closed). Other dimensions are returned as
+    they are. Why: see `ManiFlowConfig.binary_action_dims`."""
+    if not dims:
+        return actions
+    out = actions.clone()
+    idx = list(dims)
+    out[..., idx] = torch.where(actions[..., idx] > 0, 1.0, -1.0).to(actions.dtype)
+    return out
+
+
 def _invalidate_after_load(module: ManiFlowModel, incompatible_keys) -> None:
     module.invalidate_modulation_cache()
 
@@ -462,7 +474,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
             raise ValueError(f"`noise` must have shape {shape}. Got {tuple(noise.shape)}.")
         actions = model.sample(context, noise.to(device=context.device, dtype=context.dtype),
                                self.config.num_inference_steps)
-        return actions.clamp(-1.0, 1.0) if self.config.clip_actions else actions
+        if self.config.clip_actions:
+            actions = actions.clamp(-1.0, 1.0)
+        return snap_binary_dims(actions, self.config.binary_action_dims)
 
     @torch.no_grad()
     def predict_action_chunk(
