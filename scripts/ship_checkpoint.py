@@ -18,7 +18,34 @@ FILES = ("config.json", "model.safetensors", "train_config.json")
 MAX_BYTES = 25 * 1024 * 1024
 
 
-def card(train: dict, results: dict, wall_min: float | None, name: str) -> str:
+def collection_summary(train: dict) -> dict | None:
+    """What the training dataset's `bavo-collect` record says (condition, execution noise, seeds, discarded
+    attempts) and its frame count, or None when that dataset is not on this machine."""
+    from lerobot_bavo.datasets.hub import SIDECAR
+    from lerobot_bavo.datasets.views import VIEW_KEEPS
+
+    root = train["dataset"].get("root")
+    if not root:
+        return None
+    view_root = Path(root)
+    base = view_root
+    for view in VIEW_KEEPS:
+        if view_root.name.endswith(f"_{view}"):
+            base = view_root.with_name(view_root.name[: -len(view) - 1])
+    try:
+        record = json.loads((base / SIDECAR).read_text())
+        info = json.loads((view_root / "meta" / "info.json").read_text())
+    except (OSError, ValueError):
+        return None
+    settings = record["settings"]
+    return {"root": str(base), "view_root": str(view_root), "repo_id": record["repo_id"],
+            "condition": settings["condition"], "execution_noise": settings.get("execution_noise"),
+            "episodes": info["total_episodes"], "frames": info["total_frames"],
+            "discarded": len(record.get("discarded", [])), "next_seed": record.get("next_seed"),
+            "base_seed": settings.get("base_seed", 0)}
+
+
+def card(train: dict, results: dict, wall_min: float | None, name: str, data: dict | None) -> str:
     pol, ds = train["policy"], train["dataset"]
     steps, batch = train["steps"], train["batch_size"]
     table = ["| task | condition | episodes | SR (%) | TPS (%) |", "|---|---|---|---|---|"]
@@ -27,10 +54,29 @@ def card(train: dict, results: dict, wall_min: float | None, name: str) -> str:
         table.append(f"| {task} | {cond} | {cell['n_episodes']} | {cell['sr']:.1f} | {cell['tps']:.1f} |")
     status = ("\n**Status: it does not succeed yet (SR 0 in every cell below).** It is shipped so that the demo, both\n"
               "evaluators and the Hub recipe run a real learned policy; the failure ladder in\n"
-              "docs/results/ladder_cube_handoff.md says what the CPU budget reached (not even a privileged-state "
-              "ManiFlow\ngrasps the cube at this budget).\n"
+              "docs/results/ladder_cube_handoff.md says what the CPU budget reached.\n"
               if all(c["sr"] == 0 for c in results["cells"].values()) else "")
-    wall = f"{wall_min:.0f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
+    wall = f"{wall_min:.1f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
+    if data is None:
+        data_text = (f"`{ds['repo_id']}` (its `bavo-collect` record was not on this machine when the checkpoint "
+                     "was shipped, so the card cannot say more).")
+        frames = None
+    else:
+        frames = data["frames"]
+        noise = data["execution_noise"]
+        noise_flag = f" --execution-noise {noise['std']}" if noise else ""
+        noise_text = (f"DART-style execution noise: the env executed the expert's arm targets plus an AR(1) offset "
+                      f"of std {noise['std']} rad (correlation {noise['correlation']}), the clean targets are "
+                      "recorded; " if noise else "")
+        data_text = (f"`bavo-collect --task cube_handoff --condition {data['condition']} --episodes {data['episodes']} "
+                     f"--repo-id {data['repo_id']} --root {data['root']} --workers 2{noise_flag}` "
+                     f"({noise_text}{data['episodes']} successful episodes from seeds {data['base_seed']}-"
+                     f"{data['next_seed'] - 1}, {data['discarded']} failed attempts discarded, {frames:,} frames, "
+                     "simulator-exact teacher), then its `points` view (`python -m lerobot_bavo.datasets.views "
+                     "--view points`).")
+    epochs = f"{steps * batch / frames:.1f} epochs; " if frames else ""
+    extra = [f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
+    binary = pol.get("binary_action_dims", [6, 13])
     return f"""---
 library_name: lerobot
 tags: [lerobot, robotics, bavo-bench, a-far, active-vision]
@@ -39,30 +85,30 @@ tags: [lerobot, robotics, bavo-bench, a-far, active-vision]
 # {name}: A-FAR on BAVO-Bench Cube Handoff (CPU scale)
 {status}
 A-FAR (ManiFlow + WorldQueryFormer future tokens + gated fusion + relational distillation) trained with
-`lerobot-train` on 100 scripted Stage-occlusion demonstrations of `cube_handoff`, at the `{pol['preset']}`
+`lerobot-train` on scripted demonstrations of `cube_handoff`, at the `{pol['preset']}`
 size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and docs/DESIGN.md for every size
 that differs from the paper, and why). Inputs: `observation.point_cloud` (256 coloured points in the robot
 base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample) and
 `observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
-{pol['n_action_steps']} executed per call. Teacher features are training-only.
+{pol['n_action_steps']} executed per call, the gripper commands (action dims {list(binary)}) snapped to fully open
+or fully closed at inference (`binary_action_dims`). Teacher features are training-only.
 
 ## Data
-`bavo-collect --task cube_handoff --condition stage --episodes 100 --repo-id {ds['repo_id'].removesuffix('_points')}
---root outputs/datasets/bavo_cube_handoff --workers 2` (seeds 0-99, 42,729 frames, simulator-exact teacher),
-then its `points` view (`python -m lerobot_bavo.datasets.views --view points`).
+{data_text}
 
 ## Training
-`bash scripts/train_cube_handoff.sh afar` (STEPS={steps}, BATCH={batch}), i.e. `lerobot-train --policy.type=afar
---policy.preset={pol['preset']} --batch_size={batch} --steps={steps} --seed={train['seed']}` on the points view.
-Budget: {steps} steps x batch {batch} = {steps * batch:,} samples ({steps * batch / 42729:.1f} epochs;
-the paper: 100K x 64 = 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine schedule with
-{pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inference.
+`lerobot-train --policy.type=afar --policy.preset={pol['preset']} {' '.join(extra)}
+--dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch} --steps={steps}
+--seed={train['seed']} --num_workers=0` (`scripts/train_cube_handoff.sh afar` with the matching environment
+variables). Budget: {steps} steps x batch {batch} = {steps * batch:,} samples ({epochs}the paper: 100K x 64 =
+6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine schedule with {pol['scheduler_warmup_steps']} warm-up
+steps, EMA weights for inference.
 
-## Results (bavo-eval, held-out seeds from {results.get('seed', 1000)}; demonstrations used 0-99)
+## Results (bavo-eval, held-out seeds from {results.get('seed', 1000)}; demonstrations used other seeds)
 {chr(10).join(table)}
 
-Reproduce: `bavo-eval --policy checkpoints/afar_cube_handoff --tasks cube_handoff --conditions clean,stage
---episodes {results['episodes']} --seed {results.get('seed', 1000)}`.
+Reproduce: `bavo-eval --policy checkpoints/afar_cube_handoff --tasks cube_handoff --conditions
+{','.join(sorted({k.split('/')[1] for k in results['cells']}))} --episodes {results['episodes']} --seed {results.get('seed', 1000)}`.
 
 ## Use
 - `bavo-eval --policy PATH`, `bash scripts/demo.sh` (this checkpoint is its default), or
@@ -105,7 +151,8 @@ def main() -> None:
         raise SystemExit(f"{args.output} is {total / 2**20:.1f} MiB > 25 MiB")
     train = json.loads((src / "train_config.json").read_text())
     results = json.loads(args.eval.read_text())
-    (args.output / "README.md").write_text(card(train, results, args.wall_min, args.output.name))
+    card_text = card(train, results, args.wall_min, args.output.name, collection_summary(train))
+    (args.output / "README.md").write_text(card_text)
     print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
 
 
