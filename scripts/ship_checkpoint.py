@@ -45,8 +45,10 @@ def collection_summary(train: dict) -> dict | None:
             "base_seed": settings.get("base_seed", 0)}
 
 
-def card(train: dict, results: dict, wall_min: float | None, name: str, data: dict | None) -> str:
+def card(train: dict, results: dict, wall_min: float | None, name: str, data: dict | None, config: dict) -> str:
     pol, ds = train["policy"], train["dataset"]
+    steps_note = (f" (trained with {pol['num_inference_steps']}; set in the shipped config.json)"
+                  if config["num_inference_steps"] != pol["num_inference_steps"] else "")
     steps, batch = train["steps"], train["batch_size"]
     table = ["| task | condition | episodes | SR (%) | TPS (%) |", "|---|---|---|---|---|"]
     for key, cell in sorted(results["cells"].items()):
@@ -76,7 +78,7 @@ def card(train: dict, results: dict, wall_min: float | None, name: str, data: di
                      "--view points`).")
     epochs = f"{steps * batch / frames:.1f} epochs; " if frames else ""
     extra = [f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
-    binary = pol.get("binary_action_dims", [6, 13])
+    binary = config.get("binary_action_dims", [6, 13])
     return f"""---
 library_name: lerobot
 tags: [lerobot, robotics, bavo-bench, a-far, active-vision]
@@ -90,8 +92,9 @@ size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and 
 that differs from the paper, and why). Inputs: `observation.point_cloud` (256 coloured points in the robot
 base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample) and
 `observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
-{pol['n_action_steps']} executed per call, the gripper commands (action dims {list(binary)}) snapped to fully open
-or fully closed at inference (`binary_action_dims`). Teacher features are training-only.
+{pol['n_action_steps']} executed per call, sampled with {config['num_inference_steps']} Euler steps{steps_note}, the
+gripper commands (action dims {list(binary)}) snapped to fully open or fully closed at inference
+(`binary_action_dims`). Teacher features are training-only.
 
 ## Data
 {data_text}
@@ -132,6 +135,9 @@ def main() -> None:
     p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
     p.add_argument("--point-frame", choices=POINT_FRAMES, default=None,
                    help="frame of the training clouds; default: read from the training dataset's bavo-collect record")
+    p.add_argument("--num-inference-steps", type=int, default=None,
+                   help="write this Euler step count into the shipped config.json (an inference setting; the card "
+                        "says so); default: as trained")
     args = p.parse_args()
     src = args.run / "checkpoints" / args.step / "pretrained_model"
     if not (src / "config.json").is_file():
@@ -140,6 +146,12 @@ def main() -> None:
     names = list(FILES) + [f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))]
     for name in names:
         shutil.copy2(src / name, args.output / name)
+    if args.num_inference_steps is not None:
+        if args.num_inference_steps < 1:
+            raise SystemExit("--num-inference-steps must be >= 1")
+        config = json.loads((args.output / "config.json").read_text())
+        config["num_inference_steps"] = args.num_inference_steps
+        (args.output / "config.json").write_text(json.dumps(config, indent=4) + "\n")
     from lerobot_bavo.checkpoints import recorded_point_frame, write_inputs_record
 
     frame = args.point_frame or recorded_point_frame(src)
@@ -151,7 +163,8 @@ def main() -> None:
         raise SystemExit(f"{args.output} is {total / 2**20:.1f} MiB > 25 MiB")
     train = json.loads((src / "train_config.json").read_text())
     results = json.loads(args.eval.read_text())
-    card_text = card(train, results, args.wall_min, args.output.name, collection_summary(train))
+    shipped_config = json.loads((args.output / "config.json").read_text())
+    card_text = card(train, results, args.wall_min, args.output.name, collection_summary(train), shipped_config)
     (args.output / "README.md").write_text(card_text)
     print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
 

@@ -119,8 +119,12 @@ class ManiFlowConfig(PreTrainedConfig):
             0 = all N. BAVO clouds are stored in farthest-point-sampling order (`envs/pointcloud.py`), so the
             first M points are exactly the M-point FPS sample of the same view, and the point-aligned teacher
             features are cut the same way. None means from the preset (paper and cpu: 0; cpu_fast: 64).
-        num_inference_steps: Euler steps from noise (t = 0) to data (t = 1) at inference. ManiFlow claims 1-2
-            steps thanks to the consistency objective (its released scripts use 10).
+        num_inference_steps: Euler steps from noise (t = 0) to data (t = 1) at inference. Default 10, as
+            ManiFlow's released scripts (its paper claims 1-2 steps thanks to the consistency objective). Measured
+            on the CPU-scale A-FAR of docs/results/ladder_cube_handoff.md (same checkpoint, Stage, 20 episodes):
+            2 steps SR 10 / TPS 53, 10 steps 35 / 75, 20 steps 45 / 75. The paper does not fix it. A
+            checkpoint's config.json keeps the value it was trained with (`--policy.num_inference_steps=N` in
+            lerobot-eval overrides it).
         use_ema_for_inference: Predict actions with the EMA copy (ManiFlow's eval model). The EMA copy is always
             kept, since it is the consistency teacher.
         clip_actions: Clamp sampled chunks to [-1, 1], the range every MIN_MAX-normalised action of the dataset
@@ -188,7 +192,7 @@ class ManiFlowConfig(PreTrainedConfig):
     points_per_step: int | None = None
 
     # Inference.
-    num_inference_steps: int = 2
+    num_inference_steps: int = 10
     use_ema_for_inference: bool = True
     clip_actions: bool = True
     binary_action_dims: tuple[int, ...] = GRIPPER_INDICES
