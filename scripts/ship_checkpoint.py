@@ -49,7 +49,9 @@ def card(train: dict, results: dict, wall_min: float | None, name: str, data: di
     pol, ds = train["policy"], train["dataset"]
     steps_note = (f" (trained with {pol['num_inference_steps']}; set in the shipped config.json)"
                   if config["num_inference_steps"] != pol["num_inference_steps"] else "")
-    steps, batch = train["steps"], train["batch_size"]
+    steps, batch = train.get("shipped_step") or train["steps"], train["batch_size"]
+    schedule = (f" (a checkpoint of a {train['steps']}-step cosine schedule, i.e. before its end)"
+                if steps != train["steps"] else "")
     table = ["| task | condition | episodes | SR (%) | TPS (%) |", "|---|---|---|---|---|"]
     for key, cell in sorted(results["cells"].items()):
         task, cond = key.split("/")
@@ -101,9 +103,9 @@ gripper commands (action dims {list(binary)}) snapped to fully open or fully clo
 
 ## Training
 `lerobot-train --policy.type=afar --policy.preset={pol['preset']} {' '.join(extra)}
---dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch} --steps={steps}
+--dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch} --steps={train['steps']}
 --seed={train['seed']} --num_workers=0` (`scripts/train_cube_handoff.sh afar` with the matching environment
-variables). Budget: {steps} steps x batch {batch} = {steps * batch:,} samples ({epochs}the paper: 100K x 64 =
+variables). Budget: {steps} steps x batch {batch} = {steps * batch:,} samples{schedule} ({epochs}the paper: 100K x 64 =
 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine schedule with {pol['scheduler_warmup_steps']} warm-up
 steps, EMA weights for inference.
 
@@ -162,6 +164,8 @@ def main() -> None:
     if total > MAX_BYTES:
         raise SystemExit(f"{args.output} is {total / 2**20:.1f} MiB > 25 MiB")
     train = json.loads((src / "train_config.json").read_text())
+    if args.step.isdigit():
+        train["shipped_step"] = int(args.step)
     results = json.loads(args.eval.read_text())
     shipped_config = json.loads((args.output / "config.json").read_text())
     card_text = card(train, results, args.wall_min, args.output.name, collection_summary(train), shipped_config)
