@@ -299,12 +299,9 @@ def recorded_point_frame(path: str | Path) -> str | None:
 
         roots.append(Path(HF_LEROBOT_HOME) / dataset["repo_id"])
     from lerobot_bavo.datasets.hub import SIDECAR
-    from lerobot_bavo.datasets.views import VIEW_KEEPS
+    from lerobot_bavo.datasets.views import view_source
 
-    for root in list(roots):
-        for view in VIEW_KEEPS:
-            if root.name.endswith(f"_{view}"):
-                roots.append(root.with_name(root.name[: -len(view) - 1]))
+    roots += [view_source(root) for root in roots if view_source(root) != root]
     for root in roots:
         record = root / SIDECAR
         try:

@@ -22,16 +22,13 @@ def collection_summary(train: dict) -> dict | None:
     """What the training dataset's `bavo-collect` record says (condition, execution noise, seeds, discarded
     attempts) and its frame count, or None when that dataset is not on this machine."""
     from lerobot_bavo.datasets.hub import SIDECAR
-    from lerobot_bavo.datasets.views import VIEW_KEEPS
+    from lerobot_bavo.datasets.views import view_source
 
     root = train["dataset"].get("root")
     if not root:
         return None
     view_root = Path(root)
-    base = view_root
-    for view in VIEW_KEEPS:
-        if view_root.name.endswith(f"_{view}"):
-            base = view_root.with_name(view_root.name[: -len(view) - 1])
+    base = view_source(view_root)
     try:
         record = json.loads((base / SIDECAR).read_text())
         info = json.loads((view_root / "meta" / "info.json").read_text())

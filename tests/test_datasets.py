@@ -394,7 +394,7 @@ def test_video_coverage_check_catches_dropped_frames(dataset_root):
 def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root, tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_bavo.datasets.views import make_view, removed_features
+    from lerobot_bavo.datasets.views import make_view, removed_features, view_source
 
     src = LeRobotDataset(REPO, root=dataset_root, video_backend="pyav")
     bookkeeping = {"timestamp", "frame_index", "episode_index", "index", "task_index"}
@@ -416,6 +416,9 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
             assert out_stats[S.OBS_POINT_CLOUD] == src_stats[S.OBS_POINT_CLOUD]
         with pytest.raises(FileExistsError, match="exists"):
             make_view(dataset_root, view, output_root=tmp_path / view)
+        assert view_source(tmp_path / f"demo_{view}") == tmp_path / "demo"  # how make_view names its default copy
+    assert view_source(tmp_path / "demo") == tmp_path / "demo"
+    assert view_source(tmp_path / "demo_pointsy") == tmp_path / "demo_pointsy"
     with pytest.raises(ValueError, match="unknown view 'depth'"):
         removed_features(src.meta.features, "depth")
     with pytest.raises(ValueError, match="needed by the 'points' view"):

@@ -71,7 +71,7 @@ from lerobot_bavo.datasets.transaction import (
 )
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
-from lerobot_bavo.runtime.pool import EXECUTORS, WorkerPool, add_executor_arguments
+from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments, executor_problem
 
 logger = logging.getLogger("bavo-collect")
 
@@ -131,19 +131,8 @@ class CollectConfig:
             raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
         if self.workers < 0:
             raise ValueError(f"--workers must be >= 0, got {self.workers}")
-        if self.executor not in EXECUTORS:
-            raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}, got {self.executor!r}")
-        if self.ray_address and self.executor != "ray":
-            raise ValueError("--ray-address needs --executor ray")
-        if self.executor == "ray":
-            if self.workers < 1:
-                raise ValueError(f"--workers must be >= 1 with --executor ray, got {self.workers}")
-            from lerobot_bavo.runtime.ray_pool import RayMissingError, import_ray
-
-            try:
-                import_ray()
-            except RayMissingError as e:
-                raise ValueError(str(e)) from None
+        if (problem := executor_problem(self.executor, self.ray_address, self.workers)) is not None:
+            raise ValueError(problem)
         if self.commit_every < 1:
             raise ValueError(f"--commit-every must be >= 1, got {self.commit_every}")
         if self.seed < 0:

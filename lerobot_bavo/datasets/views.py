@@ -48,6 +48,17 @@ def removed_features(features: dict, view: str) -> list[str]:
     return [k for k in features if k not in keep]
 
 
+def view_source(root: Path) -> Path:
+    """The dataset folder a view folder was made from (`<root>_<view>` -> `<root>`, as `make_view` names it);
+    any other folder is its own source. Only the name is read: the view copy has no `bavo-collect` record,
+    its source has, so code that needs the record (collection settings, point frame) looks there."""
+    root = Path(root)
+    for view in VIEW_KEEPS:
+        if root.name.endswith(f"_{view}"):
+            return root.with_name(root.name[: -len(view) - 1])
+    return root
+
+
 def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Path | None = None):
     """Write the `view` copy of the BAVO dataset at `root`; returns the new `LeRobotDataset`.
 

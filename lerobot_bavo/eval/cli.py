@@ -56,7 +56,7 @@ import json
 import time
 from pathlib import Path
 
-from lerobot_bavo.runtime.pool import EXECUTORS, ProcessCache, WorkerPool, add_executor_arguments
+from lerobot_bavo.runtime.pool import ProcessCache, WorkerPool, add_executor_arguments, executor_problem
 
 RESULTS_VERSION = 1
 
@@ -208,21 +208,6 @@ def append_record(log, record: dict) -> None:
 
 
 
-def _check_executor(executor: str, ray_address: str | None) -> None:
-    """A known executor; --ray-address only with ray; Ray importable for ray (else a message naming the extra)."""
-    if executor not in EXECUTORS:
-        raise SystemExit(f"bavo-eval: --executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
-    if ray_address and executor != "ray":
-        raise SystemExit("bavo-eval: --ray-address needs --executor ray")
-    if executor == "ray":
-        from lerobot_bavo.runtime.ray_pool import RayMissingError, import_ray
-
-        try:
-            import_ray()
-        except RayMissingError as e:
-            raise SystemExit(f"bavo-eval: {e}") from None
-
-
 def _make_pool(executor: str, workers: int, jobs: list, ray_address: str | None):
     """The pool episodes run in: local processes (in-process for one worker), or Ray tasks (`RayPool`; Ray is
     imported only here). Both give `imap(fn, jobs)`; Ray's results come in completion order."""
@@ -258,7 +243,8 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
         raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
                          "nor a LeRobot checkpoint directory containing config.json")
-    _check_executor(executor, ray_address)
+    if (problem := executor_problem(executor, ray_address, workers)) is not None:
+        raise SystemExit(f"bavo-eval: {problem}")
     if point_frame is not None and point_frame not in POINT_FRAMES:
         raise SystemExit(f"bavo-eval: --point-frame must be base or camera, got {point_frame!r}")
     if output_dir.exists() and not output_dir.is_dir():
@@ -403,7 +389,8 @@ def main(argv: list[str] | None = None) -> None:
     from lerobot_bavo.checkpoints import CheckpointMismatchError, UntrustedCheckpointError
 
     if args.grid is not None:
-        _check_executor(args.executor, args.ray_address)
+        if (problem := executor_problem(args.executor, args.ray_address, args.workers)) is not None:
+            raise SystemExit(f"bavo-eval: {problem}")
         from lerobot_bavo.eval.grid import GridError, load_grid, run_grid
 
         try:

@@ -111,3 +111,25 @@ def add_executor_arguments(parser, workers_default: int, workers_help: str, exec
     parser.add_argument("--ray-address", default=None, metavar="ADDR",
                         help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: "
                              "start a private local Ray with --workers CPUs")
+
+
+def executor_problem(executor: str, ray_address: str | None, workers: int) -> str | None:
+    """What is wrong with an executor choice, as a message for the user, or None when it can run.
+
+    One check for both CLIs (each raises it as its own error type): a known executor, `--ray-address` only
+    with Ray, at least one worker on Ray, and Ray importable (else the message names the extra to install).
+    Ray is imported only when it was asked for."""
+    if executor not in EXECUTORS:
+        return f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}"
+    if ray_address and executor != "ray":
+        return "--ray-address needs --executor ray"
+    if executor == "ray":
+        if workers < 1:
+            return f"--workers must be >= 1 with --executor ray, got {workers}"
+        from lerobot_bavo.runtime.ray_pool import RayMissingError, import_ray
+
+        try:
+            import_ray()
+        except RayMissingError as e:
+            return str(e)
+    return None
