@@ -12,7 +12,7 @@
 #   bash scripts/train_cube_handoff.sh eval RUN     # bavo-eval of outputs/train/RUN (clean + stage, 20 seeds)
 #
 # Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
-# Environment overrides: STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, TAG
+# Environment overrides: STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM, TAG
 # (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/maniflow_state_b256_s1000), and DATA: empty for
 # the noise-free demonstrations (outputs/datasets/bavo_cube_handoff), `dart` for the DART-style ones collected
 # with `--execution-noise $NOISE` (default 0.01 rad; outputs/datasets/bavo_cube_handoff_dart, runs get a _dart
@@ -35,6 +35,7 @@ EPISODES="${EPISODES:-20}"
 LR="${LR:-}"          # empty: the policy's preset (1e-4, the paper's)
 WARMUP="${WARMUP:-}"  # empty: the preset's 500 warm-up steps
 TAG="${TAG:-}${DATA:+_$DATA}"
+FROM="${FROM:-}"      # a pretrained_model folder to fine-tune (e.g. checkpoints/afar_cube_handoff); empty: from scratch
 
 train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
     local name=$1 type=$2 view=$3
@@ -47,7 +48,10 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
         return
     fi
     mkdir -p outputs/train
-    .venv/bin/lerobot-train --policy.type="$type" --policy.preset="$PRESET" \
+    local policy_args=(--policy.type="$type" --policy.preset="$PRESET")
+    # FROM: start from a checkpoint's weights, EMA and processors (its config; fresh optimiser and schedule)
+    [ -n "$FROM" ] && policy_args=(--policy.path="$FROM")
+    .venv/bin/lerobot-train "${policy_args[@]}" \
         --dataset.repo_id="${REPO}_$view" --dataset.root="${DS}_$view" \
         --policy.device="$DEVICE" --policy.push_to_hub=false --num_workers=0 \
         --batch_size="$BATCH" --steps="$STEPS" --save_freq="$SAVE_FREQ" --log_freq=50 --seed="$SEED" \

@@ -192,6 +192,12 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
         save_file(weights, str(partial / "model.safetensors"))
         with pytest.raises(CheckpointMismatchError, match=r"1 unexpected \['extra.weight'\]"):
             LeRobotPolicyAgent(partial, env)
+        invalid = _copy(checkpoint, tmp_path / "invalid")  # a value the config's own check refuses: named
+        config = json.loads((invalid / "config.json").read_text())
+        config["n_action_steps"] = config["horizon"]
+        (invalid / "config.json").write_text(json.dumps(config))
+        with pytest.raises(CheckpointMismatchError, match=r"because: `n_action_steps` must be in \[1, horizon"):
+            LeRobotPolicyAgent(invalid, env)
         agent = LeRobotPolicyAgent(checkpoint, env)  # the complete one loads and acts
         obs, info = env.reset(seed=0)
         assert np.isfinite(agent.act(obs, info)).all()

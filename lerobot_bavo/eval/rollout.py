@@ -70,9 +70,14 @@ class LeRobotPolicyAgent:
         self._torch = torch
         try:
             cfg = PreTrainedConfig.from_pretrained(path)
-        except Exception as e:  # draccus reports an unknown policy type as a bare "invalid choice"
+        except Exception as e:  # draccus reports an unknown policy type as a bare "invalid choice", and a
+            # config's own check (e.g. n_action_steps out of range) only in the chain below its wrapper error
+            cause = e
+            while cause.__cause__ is not None or cause.__context__ is not None:
+                cause = cause.__cause__ or cause.__context__
+            detail = f"{e}" if cause is e else f"{e} (because: {cause})"
             raise CheckpointMismatchError(f"{path / 'config.json'} cannot be read as a LeRobot policy config "
-                                          f"(is its 'type' a registered policy?): {e}") from e
+                                          f"(is its 'type' a registered policy, are its values valid?): {detail}") from e
         cfg.pretrained_path = path
         cfg.device = device
         env_cfg = BavoEnvConfig(task=env.task.name, condition=env.condition, image_height=s.image_height,
