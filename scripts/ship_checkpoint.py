@@ -5,6 +5,11 @@ log's wall time, bavo-eval's results.json), so its numbers are the measured ones
 
     python scripts/ship_checkpoint.py --run outputs/train/afar_s1000 --step 006000 \\
         --eval outputs/eval/afar_s1000_006000/results.json --output checkpoints/afar_cube_handoff
+
+Inference settings (`--num-inference-steps`, `--n-action-steps`) are written into the shipped config.json and
+the card says they differ from training; `--notes FILE` adds how they were chosen. `--checkpoint DIR` re-ships a
+`pretrained_model` folder (e.g. the shipped one, in place) when the training run is not on this machine;
+`--eval` may be given once per results.json (e.g. Stage and Clean evaluated separately).
 """
 
 from __future__ import annotations
@@ -42,21 +47,32 @@ def collection_summary(train: dict) -> dict | None:
             "base_seed": settings.get("base_seed", 0)}
 
 
-def card(train: dict, results: dict, wall_min: float | None, name: str, data: dict | None, config: dict) -> str:
+def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data: dict | None, config: dict,
+         notes: str = "") -> str:
     pol, ds = train["policy"], train["dataset"]
     steps_note = (f" (trained with {pol['num_inference_steps']}; set in the shipped config.json)"
                   if config["num_inference_steps"] != pol["num_inference_steps"] else "")
+    chunk_note = (f" (the training config had {pol['n_action_steps']}; set in the shipped config.json)"
+                  if config["n_action_steps"] != pol["n_action_steps"] else "")
     steps, batch = train.get("shipped_step") or train["steps"], train["batch_size"]
     schedule = (f" (a checkpoint of a {train['steps']}-step cosine schedule, i.e. before its end)"
                 if steps != train["steps"] else "")
-    table = ["| task | condition | episodes | SR (%) | TPS (%) |", "|---|---|---|---|---|"]
-    for key, cell in sorted(results["cells"].items()):
-        task, cond = key.split("/")
-        table.append(f"| {task} | {cond} | {cell['n_episodes']} | {cell['sr']:.1f} | {cell['tps']:.1f} |")
+    table = ["| task | condition | episodes | seeds | SR (%) | TPS (%) |", "|---|---|---|---|---|---|"]
+    reproduce = []
+    for results in evals:
+        seed = results.get("seed", 1000)
+        for key, cell in sorted(results["cells"].items()):
+            task, cond = key.split("/")
+            table.append(f"| {task} | {cond} | {cell['n_episodes']} | {seed}-{seed + cell['n_episodes'] - 1} | "
+                         f"{cell['sr']:.1f} | {cell['tps']:.1f} |")
+        conds = ",".join(sorted({k.split("/")[1] for k in results["cells"]}))
+        reproduce.append(f"`bavo-eval --policy checkpoints/{name} --tasks cube_handoff --conditions {conds} "
+                         f"--episodes {results['episodes']} --seed {seed}`")
+    cells = [c for results in evals for c in results["cells"].values()]
     status = ("\n**Status: it does not succeed yet (SR 0 in every cell below).** It is shipped so that the demo, both\n"
               "evaluators and the Hub recipe run a real learned policy; the failure ladder in\n"
               "docs/results/ladder_cube_handoff.md says what the CPU budget reached.\n"
-              if all(c["sr"] == 0 for c in results["cells"].values()) else "")
+              if all(c["sr"] == 0 for c in cells) else "")
     wall = f"{wall_min:.1f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
     if data is None:
         data_text = (f"`{ds['repo_id']}` (its `bavo-collect` record was not on this machine when the checkpoint "
@@ -91,7 +107,7 @@ size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and 
 that differs from the paper, and why). Inputs: `observation.point_cloud` (256 coloured points in the robot
 base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample) and
 `observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
-{pol['n_action_steps']} executed per call, sampled with {config['num_inference_steps']} Euler steps{steps_note}, the
+{config['n_action_steps']} executed per call{chunk_note}, sampled with {config['num_inference_steps']} Euler steps{steps_note}, the
 gripper commands (action dims {list(binary)}) snapped to fully open or fully closed at inference
 (`binary_action_dims`). Teacher features are training-only.
 
@@ -106,12 +122,11 @@ variables). Budget: {steps} steps x batch {batch} = {steps * batch:,} samples{sc
 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine schedule with {pol['scheduler_warmup_steps']} warm-up
 steps, EMA weights for inference.
 
-## Results (bavo-eval, held-out seeds from {results.get('seed', 1000)}; demonstrations used other seeds)
+## Results (bavo-eval; the demonstrations used seeds below 1000)
 {chr(10).join(table)}
 
-Reproduce: `bavo-eval --policy checkpoints/afar_cube_handoff --tasks cube_handoff --conditions
-{','.join(sorted({k.split('/')[1] for k in results['cells']}))} --episodes {results['episodes']} --seed {results.get('seed', 1000)}`.
-
+Reproduce: {'; '.join(reproduce)}.
+{chr(10) + notes if notes else ''}
 ## Use
 - `bavo-eval --policy PATH`, `bash scripts/demo.sh` (this checkpoint is its default), or
   `lerobot-eval --policy.path=PATH --env.type=bavo --env.task=cube_handoff --env.condition=stage`.
@@ -127,9 +142,16 @@ def main() -> None:
     from lerobot_bavo.features import POINT_FRAMES
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--run", type=Path, required=True, help="lerobot-train --output_dir")
-    p.add_argument("--step", default="last", help="checkpoint step folder (e.g. 006000) or last")
-    p.add_argument("--eval", type=Path, required=True, help="bavo-eval results.json of this checkpoint")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--run", type=Path, help="lerobot-train --output_dir")
+    source.add_argument("--checkpoint", type=Path,
+                        help="a pretrained_model folder to ship instead of --run/--step (may be --output itself)")
+    p.add_argument("--step", default="last",
+                   help="checkpoint step folder (e.g. 006000) or last; with --checkpoint, the step it was saved at "
+                        "(for the card's budget) or last")
+    p.add_argument("--eval", type=Path, required=True, action="append",
+                   help="bavo-eval results.json of this checkpoint (repeat for several runs)")
+    p.add_argument("--notes", type=Path, default=None, help="a Markdown file appended to the card's results")
     p.add_argument("--output", type=Path, default=Path("checkpoints/afar_cube_handoff"))
     p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
     p.add_argument("--point-frame", choices=POINT_FRAMES, default=None,
@@ -137,20 +159,28 @@ def main() -> None:
     p.add_argument("--num-inference-steps", type=int, default=None,
                    help="write this Euler step count into the shipped config.json (an inference setting; the card "
                         "says so); default: as trained")
+    p.add_argument("--n-action-steps", type=int, default=None,
+                   help="write this number of actions executed per policy call into the shipped config.json (an "
+                        "inference setting, 1 to horizon - n_obs_steps + 1; the card says so); default: as trained")
     args = p.parse_args()
-    src = args.run / "checkpoints" / args.step / "pretrained_model"
+    src = args.checkpoint if args.checkpoint else args.run / "checkpoints" / args.step / "pretrained_model"
     if not (src / "config.json").is_file():
         raise SystemExit(f"no checkpoint at {src}")
     args.output.mkdir(parents=True, exist_ok=True)
     names = list(FILES) + [f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))]
     for name in names:
-        shutil.copy2(src / name, args.output / name)
-    if args.num_inference_steps is not None:
-        if args.num_inference_steps < 1:
-            raise SystemExit("--num-inference-steps must be >= 1")
-        config = json.loads((args.output / "config.json").read_text())
-        config["num_inference_steps"] = args.num_inference_steps
-        (args.output / "config.json").write_text(json.dumps(config, indent=4) + "\n")
+        if (src / name).resolve() != (args.output / name).resolve():
+            shutil.copy2(src / name, args.output / name)
+    config = json.loads((args.output / "config.json").read_text())
+    for key, value in (("num_inference_steps", args.num_inference_steps), ("n_action_steps", args.n_action_steps)):
+        if value is not None:
+            if value < 1:
+                raise SystemExit(f"--{key.replace('_', '-')} must be >= 1")
+            config[key] = value
+    limit = config["horizon"] - config["n_obs_steps"] + 1
+    if not 1 <= config["n_action_steps"] <= limit:
+        raise SystemExit(f"--n-action-steps must be in [1, horizon - n_obs_steps + 1] = [1, {limit}]")
+    (args.output / "config.json").write_text(json.dumps(config, indent=4) + "\n")
     from lerobot_bavo.checkpoints import recorded_point_frame, write_inputs_record
 
     frame = args.point_frame or recorded_point_frame(src)
@@ -163,9 +193,9 @@ def main() -> None:
     train = json.loads((src / "train_config.json").read_text())
     if args.step.isdigit():
         train["shipped_step"] = int(args.step)
-    results = json.loads(args.eval.read_text())
-    shipped_config = json.loads((args.output / "config.json").read_text())
-    card_text = card(train, results, args.wall_min, args.output.name, collection_summary(train), shipped_config)
+    evals = [json.loads(path.read_text()) for path in args.eval]
+    notes = args.notes.read_text() if args.notes else ""
+    card_text = card(train, evals, args.wall_min, args.output.name, collection_summary(train), config, notes)
     (args.output / "README.md").write_text(card_text)
     print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
 

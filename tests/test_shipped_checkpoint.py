@@ -57,3 +57,37 @@ def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
+
+
+def test_a_learned_policy_episode_depends_only_on_its_seed():
+    """Same seed, same episode: the sampler's noise is seeded with the episode seed, so an episode does not
+    depend on what the same process ran before it (it did when the noise came from torch's global RNG), and
+    the noise does matter (another noise seed, other actions from the same state)."""
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
+
+    env = BavoEnv("cube_handoff", "stage", render_mode=None, episode_length=6,
+                  **env_kwargs_for_policy(str(SHIPPED_CHECKPOINT)))
+    try:
+        agent = make_agent(str(SHIPPED_CHECKPOINT), env)
+        sent = []
+        act = agent.act
+        agent.act = lambda obs, info: sent.append(act(obs, info)) or sent[-1]
+
+        def actions(seed):
+            sent.clear()
+            run_episode(env, agent, seed=seed)
+            return np.stack(sent)
+
+        first = actions(1000)
+        actions(1001)
+        np.testing.assert_array_equal(actions(1000), first)  # after another episode in the same process
+
+        obs, info = env.reset(seed=1000)
+        agent.reset(seed=1000)
+        assert np.array_equal(act(obs, info), first[0])
+        obs, info = env.reset(seed=1000)
+        agent.reset(seed=7)  # same state, other noise
+        assert not np.allclose(act(obs, info), first[0])
+    finally:
+        env.close()

@@ -300,13 +300,15 @@ def test_eval_episode_rrd_matches_the_rollout(eval_run):
 
 
 def test_eval_rrd_has_the_policys_predicted_chunks(tmp_path):
-    """A LeRobot checkpoint (the shipped A-FAR) rolled out by bavo-eval's `run_episode`, 16 steps: a chunk of
-    n_action_steps (8) joint targets at frames 0 and 8: the actions then sent, and the grippers' paths."""
+    """A LeRobot checkpoint (the shipped A-FAR) rolled out by bavo-eval's `run_episode` for two chunks: a chunk
+    of n_action_steps (12 shipped) joint targets at frames 0 and n: the actions then sent, and the grippers'
+    paths."""
     from lerobot_bavo.demo import SHIPPED_CHECKPOINT
     from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
 
-    env = BavoEnv("cube_handoff", "stage", render_mode=None, episode_length=16,
+    n_action_steps = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())["n_action_steps"]
+    env = BavoEnv("cube_handoff", "stage", render_mode=None, episode_length=2 * n_action_steps,
                   **env_kwargs_for_policy(str(SHIPPED_CHECKPOINT)))
     try:
         agent = make_agent(str(SHIPPED_CHECKPOINT), env)

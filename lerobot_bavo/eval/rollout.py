@@ -7,6 +7,7 @@ first frames after every occlusion event with a red border.
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ class ExpertAgent:
 
         self.expert = make_expert(env, frozen_camera=frozen_camera)
 
-    def reset(self) -> None:
+    def reset(self, seed: int | None = None) -> None:  # noqa: ARG002 (the expert draws from the env's RNG only)
         self.expert.reset()
 
     def act(self, obs: dict, info: dict) -> np.ndarray:
@@ -91,10 +92,27 @@ class LeRobotPolicyAgent:
             preprocessor_overrides={"device_processor": {"device": device}},
         )
         self.task_description = env.task_description
+        self._device = device
+        self._takes_generator = "generator" in inspect.signature(self.policy.select_action).parameters
+        self._generator = None
         self.last_chunk: np.ndarray | None = None  # (k, 21) joint targets predicted at the last act(), if any
 
-    def reset(self) -> None:
+    def reset(self, seed: int | None = None) -> None:
+        """Clear the policy's queues; with `seed`, also fix the noise its sampler draws this episode.
+
+        Why: a flow / diffusion policy samples each chunk from Gaussian noise. Drawn from torch's global RNG,
+        an episode's actions would depend on which episodes the same worker process ran before it, so the same
+        seed would not give the same episode. Policies whose `select_action` takes a `generator` (ManiFlow,
+        A-FAR) get one seeded with the episode seed; others (LeRobot's own) draw from the global RNG, which is
+        seeded with it instead (a worker runs one episode at a time)."""
         self.policy.reset()
+        if seed is None:
+            self._generator = None
+        elif self._takes_generator:
+            self._generator = self._torch.Generator(device=self._device).manual_seed(int(seed))
+        else:
+            self._generator = None
+            self._torch.manual_seed(int(seed))
 
     def act(self, obs: dict, info: dict) -> np.ndarray:
         from lerobot.envs.utils import preprocess_observation
@@ -107,7 +125,10 @@ class LeRobotPolicyAgent:
         with self._torch.inference_mode():
             queue = _action_queue(self.policy)
             fresh = queue is not None and len(queue) == 0  # this call predicts a new chunk
-            action = self.policy.select_action(batch)
+            if self._generator is not None:
+                action = self.policy.select_action(batch, generator=self._generator)
+            else:
+                action = self.policy.select_action(batch)
             queue = _action_queue(self.policy)
             self.last_chunk = None
             if fresh and queue is not None:  # the chunk just predicted: this action and those queued after it
@@ -158,7 +179,7 @@ def run_episode(env, agent, seed: int, video_path: Path | None = None, video_eve
     """Roll out one seeded episode; returns its record (and writes a video, and a rerun recording of every
     step built from the observations and `info` only (`lerobot_bavo.viz.recorder`), if asked)."""
     obs, info = env.reset(seed=seed)
-    agent.reset()
+    agent.reset(seed=seed)
     frames = []
     recorder = None
     if rerun_path is not None:
