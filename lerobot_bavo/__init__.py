@@ -6,15 +6,22 @@ import sys
 # Headless EGL rendering by default; must be set before MuJoCo is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-# `bavo-view` only reads datasets and writes rerun recordings: it skips the registrations below, whose
-# LeRobot / PyTorch imports take seconds (BAVO_LIGHT_IMPORT=1 does the same in any program).
+# Gym ids `lerobot_bavo/<GymName>-v0` (light: MuJoCo and gymnasium, no PyTorch).
+import lerobot_bavo.envs  # noqa: E402, F401
+
+# LeRobot's env type "bavo" and policy types "maniflow" and "afar": these import LeRobot and PyTorch (seconds).
+# They are skipped where nothing needs them: `bavo-view`, and the worker processes of `bavo-eval` /
+# `bavo-collect` on Ray (BAVO_LIGHT_IMPORT=1, set by `runtime.ray_pool.worker_env_vars`), which step envs and
+# experts; a worker that loads a checkpoint registers them then (`LeRobotPolicyAgent`, `register_lerobot_types`).
 _LIGHT_IMPORT = os.environ.get("BAVO_LIGHT_IMPORT") == "1" or os.path.basename(sys.argv[0] if sys.argv else "") == "bavo-view"
 
-if not _LIGHT_IMPORT:
-    # Registration side effects (each module is imported once, so repeated imports are harmless):
-    # gym ids `lerobot_bavo/<GymName>-v0` and LeRobot's env type "bavo".
-    import lerobot_bavo.envs  # noqa: E402, F401
-    import lerobot_bavo.envs.configs  # noqa: E402, F401
 
-    # LeRobot policy types "maniflow" and "afar".
-    import lerobot_bavo.policies  # noqa: E402, F401
+def register_lerobot_types() -> None:
+    """Register the "bavo" env type and the "maniflow" / "afar" policy types with LeRobot (idempotent: each
+    module is imported once)."""
+    import lerobot_bavo.envs.configs  # noqa: F401
+    import lerobot_bavo.policies  # noqa: F401
+
+
+if not _LIGHT_IMPORT:
+    register_lerobot_types()

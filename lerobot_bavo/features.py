@@ -14,8 +14,6 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE, OBS_STR
-
 from lerobot_bavo.sim import constants as C
 
 # ------------------------------------------------------------------ raw env observation keys
@@ -26,6 +24,13 @@ ENV_POINT_PIXELS_KEY = "point_pixels"
 ENV_ENV_STATE_KEY = "environment_state"
 
 # ------------------------------------------------------------------ policy / dataset keys
+# LeRobot's names (`lerobot.utils.constants`), spelled out here because importing that module imports PyTorch
+# (through `lerobot.utils`), and the env, the experts and the collection / evaluation workers that only step
+# them need neither; tests/test_env.py checks they equal LeRobot's.
+OBS_STR = "observation"
+OBS_STATE = f"{OBS_STR}.state"
+OBS_IMAGES = f"{OBS_STR}.images"
+ACTION = "action"
 OBS_IMAGE = f"{OBS_IMAGES}.active"  # "observation.images.active"
 OBS_POINT_CLOUD = f"{OBS_STR}.point_cloud"  # "observation.point_cloud"
 OBS_POINT_PIXELS = f"{OBS_STR}.point_pixels"  # "observation.point_pixels"

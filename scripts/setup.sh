@@ -60,10 +60,11 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libavutil.so'; then
 fi
 
 stamp=.venv/.bavo-install-stamp
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+extras="test,ray"  # the test suite runs the Ray executor tests too (a local Ray on loopback)
+want=$( (cat pyproject.toml; echo "$extras") | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! .venv/bin/python -c 'import lerobot_bavo' 2>/dev/null; then
     echo "[setup] installing lerobot-bavo and its dependencies into .venv (first run downloads PyTorch; several minutes)"
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e ".[test]"
+    .venv/bin/python -m pip install -q -e ".[$extras]"
     echo "$want" > "$stamp"
 fi

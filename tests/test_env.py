@@ -552,3 +552,21 @@ def test_non_finite_action_raises_value_error(small_env, value):
     # the rejected action did not advance the simulation
     np.testing.assert_array_equal(small_env.joint_state(), q_before)
     assert small_env.elapsed_steps == 0
+
+
+def test_feature_keys_spell_lerobots_names_and_the_env_imports_no_pytorch():
+    """`lerobot_bavo.features` spells out LeRobot's key names so the env and its workers need no PyTorch."""
+    import subprocess
+    import sys
+
+    from lerobot.utils import constants as L
+
+    from lerobot_bavo import features as F
+
+    for name in ("OBS_STR", "OBS_STATE", "OBS_IMAGES", "ACTION"):
+        assert getattr(F, name) == getattr(L, name), name
+    code = ("import sys, lerobot_bavo.envs.bavo_env, lerobot_bavo.experts, lerobot_bavo.eval.cli, "
+            "lerobot_bavo.datasets.collect; print('torch' in sys.modules or 'lerobot' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env={**__import__("os").environ, "BAVO_LIGHT_IMPORT": "1"})
+    assert out.returncode == 0 and out.stdout.strip() == "False", out.stdout + out.stderr

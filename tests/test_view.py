@@ -166,23 +166,12 @@ def test_a_dataset_without_occluder_poses_is_continued_and_viewed(dataset_root, 
     assert E.OCCLUDER not in rrd.archetypes and sorted(rrd.frames[E.CLOUD]) == list(range(STEPS))
 
 
-def test_viewer_constants_equal_their_definitions():
-    """The viewer keeps literal copies of the keys it reads (importing them would import PyTorch): the same."""
-    from lerobot_bavo import features as F
-    from lerobot_bavo.envs.occlusion import OCCLUDER_HALF_EXTENTS
-    from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
-    from lerobot_bavo.sim import constants as C
-    from lerobot_bavo.viz import episode as V
-
-    for name in ("OBS_IMAGE", "OBS_POINT_CLOUD", "OBS_CAMERA_POSE", "ACTION", "TEACHER_Z0", "TEACHER_ZF",
-                 "ANN_PROGRESS", "ANN_EVENT", "ANN_EVENT_START", "ANN_ACTIVE", "ANN_TARGET", "ANN_VISIBILITY",
-                 "ANN_OCCLUDER_POSE", "POINT_CHANNELS", "POSE_CHANNELS"):
-        assert getattr(V, name) == getattr(F, name), name
-    assert V.OCCLUDER_HALF_EXTENTS == tuple(OCCLUDER_HALF_EXTENTS) and V.FUTURE_OFFSET == S.N_FUTURE
-    assert V.DEFAULT_FOVY == C.ACTIVE_CAMERA_FOVY
-    np.testing.assert_allclose(V.intrinsics(66.21, 240, 320), intrinsics_from_fovy(66.21, 240, 320), rtol=1e-12)
+def test_viewer_imports_stay_light():
+    """bavo-view reads the package's own keys and constants; importing it must not import PyTorch or LeRobot
+    (that alone would take longer than showing an episode)."""
     # bavo-view's imports stay light: no PyTorch
-    code = "import sys, lerobot_bavo.viz.cli, lerobot_bavo.viz.episode, lerobot_bavo.viz.log; print('torch' in sys.modules)"
+    code = ("import sys, lerobot_bavo.viz.cli, lerobot_bavo.viz.episode, lerobot_bavo.viz.log; "
+            "print('torch' in sys.modules or 'lerobot' in sys.modules)")
     env = dict(os.environ, BAVO_LIGHT_IMPORT="1", PYTHONPATH=str(REPO))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
     assert out.returncode == 0 and out.stdout.strip() == "False", out.stdout + out.stderr

@@ -54,7 +54,10 @@ class LeRobotPolicyAgent:
             env_settings,
             mismatches,
         )
+        from lerobot_bavo import register_lerobot_types
         from lerobot_bavo.envs.configs import BavoEnvConfig
+
+        register_lerobot_types()  # a light worker process (BAVO_LIGHT_IMPORT=1) has not registered them yet
 
         path = Path(path)
         if not (path / "config.json").is_file():

@@ -14,29 +14,26 @@ from pathlib import Path
 
 import numpy as np
 
-# The keys and constants the viewer reads, as literals: `lerobot_bavo.features` (where they are defined)
-# imports LeRobot and so PyTorch, which alone takes longer than showing an episode. test_view.py checks
-# that every one equals its definition in `lerobot_bavo.features`, `datasets.schema`, `envs.occlusion`
-# and `envs.pointcloud`.
-OBS_IMAGE = "observation.images.active"
-OBS_POINT_CLOUD = "observation.point_cloud"
-OBS_CAMERA_POSE = "observation.camera_pose"
-ACTION = "action"
-TEACHER_Z0 = "observation.teacher.z0"
-TEACHER_ZF = "observation.teacher.zf"
-ANN_PROGRESS = "annotation.progress"
-ANN_EVENT = "annotation.occlusion_event"
-ANN_EVENT_START = "annotation.event_start"
-ANN_ACTIVE = "annotation.occlusion_active"
-ANN_TARGET = "annotation.occlusion_target"
-ANN_VISIBILITY = "annotation.visibility"
-ANN_OCCLUDER_POSE = "annotation.occluder_pose"
-POINT_CHANNELS = 6
-POSE_CHANNELS = 7
-# Occluder panel half extents (thickness, width, height) in its own frame, metres.
-OCCLUDER_HALF_EXTENTS = (0.003, 0.075, 0.075)
-FUTURE_OFFSET = 15  # teacher zf answers for frame t + 15, in the camera frame of t + 15 (`schema.N_FUTURE`)
-DEFAULT_FOVY = 66.21  # the active camera's vertical field of view, degrees (`sim.constants.ACTIVE_CAMERA_FOVY`)
+from lerobot_bavo.datasets.schema import N_FUTURE as FUTURE_OFFSET  # zf answers for frame t + 15, camera frame of t + 15
+from lerobot_bavo.envs.occlusion import OCCLUDER_HALF_EXTENTS  # (thickness, width, height) / 2 in its frame, metres
+from lerobot_bavo.features import (
+    ACTION,
+    ANN_ACTIVE,
+    ANN_EVENT,
+    ANN_EVENT_START,
+    ANN_OCCLUDER_POSE,
+    ANN_PROGRESS,
+    ANN_TARGET,
+    ANN_VISIBILITY,
+    OBS_CAMERA_POSE,
+    OBS_IMAGE,
+    OBS_POINT_CLOUD,
+    POINT_CHANNELS,
+    POSE_CHANNELS,
+    TEACHER_Z0,
+    TEACHER_ZF,
+)
+from lerobot_bavo.sim.constants import ACTIVE_CAMERA_FOVY as DEFAULT_FOVY  # the active camera's vertical FoV, degrees
 
 
 @dataclass
