@@ -238,3 +238,23 @@ def test_a_killed_driver_rerun_does_only_the_unfinished_episodes(tmp_path):
     assert sorted(_log_seeds(out)) == list(range(1000, 1012))
     results = json.loads((out / "results.json").read_text())
     assert results["cells"]["cube_handoff/clean"]["n_episodes"] == 12
+
+
+@needs_ray
+def test_a_private_rays_workers_run_at_normal_priority_and_import_no_pytorch(tmp_path):
+    """A private Ray started by `RayPool` runs its workers at nice 0 like a local pool (Ray's default, 15, lets
+    any other load starve the episodes) and with the package's light import (no PyTorch for an expert episode)."""
+    code = (
+        "import os, sys\n"
+        "from lerobot_bavo.runtime.ray_pool import RayPool\n"
+        "def probe(job):\n"
+        "    import lerobot_bavo.eval.cli  # what an episode job imports\n"
+        "    return os.nice(0), 'torch' in sys.modules\n"
+        "with RayPool(1) as pool:\n"
+        "    print(list(pool.imap(probe, [{}])))\n")
+    env = dict(os.environ, PYTHONPATH=str(REPO), OPENBLAS_NUM_THREADS="1", RAY_ADDRESS="")
+    env.pop("RAY_worker_niceness", None)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=180, env=env,
+                         cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "[(0, False)]", out.stdout + out.stderr[-2000:]

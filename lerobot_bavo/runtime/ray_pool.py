@@ -21,6 +21,8 @@ Imported only for `--executor ray`: `--executor local` never imports Ray. Ray is
   Ray's workers inherit them from the environment Ray starts with, a cluster's through the job's
   `runtime_env`), and a local Ray's workers get this package's source folder on PYTHONPATH, so a source
   checkout runs unchanged; cluster nodes need the package installed (README, "Running on a Ray cluster").
+  A private Ray's workers run at nice 0 like a local pool's (Ray's default is 15: `RAY_worker_niceness`; a
+  cluster's is set where it is started, `RAY_worker_niceness=0 ray start ...`).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 MAX_RETRIES = 3
+WORKER_NICENESS_VAR = "RAY_worker_niceness"  # Ray's config: the nice value of its worker processes (default 15)
 EXTRA_HINT = "pip install 'lerobot_env_bavo[ray]'"
 
 
@@ -96,6 +99,10 @@ class RayPool:
                 # first task on 2 cores, as the prestarted workers are used)
                 saved = dict(os.environ)
                 os.environ.update(env)
+                # Ray starts its workers at nice 15 by default: beside any other load on a 2-core machine (a
+                # training, the collection writer) the episodes then crawl (measured 6x slower beside one
+                # training); a local pool's workers run at the caller's priority, so these do too
+                os.environ.setdefault(WORKER_NICENESS_VAR, "0")
                 try:
                     ray.init(num_cpus=workers, _node_ip_address="127.0.0.1", **kwargs)
                 finally:
