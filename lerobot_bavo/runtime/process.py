@@ -13,6 +13,7 @@ through a symlink) corrupted each other; an advisory lock on the *resolved* path
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 from pathlib import Path
@@ -47,16 +48,18 @@ def exit_with_parent(parent: int | None = None, poll_s: float = POLL_S) -> None:
 
 
 def limit_threads() -> None:
-    """One BLAS / OpenMP / torch thread per process (2-core machines) and headless GL."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    try:
-        import torch
+    """One BLAS / OpenMP / torch thread per worker process (2-core machines) and headless GL.
 
+    PyTorch is not imported for this: an expert episode never needs it, and a fresh Ray worker would pay
+    ~3 s for the import (issue 15). If torch is already loaded (a forked local-pool worker inherits it) its
+    thread count is set now; otherwise OMP_NUM_THREADS=1 is set, which torch reads when a job imports it
+    later (e.g. to load a checkpoint)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    torch = sys.modules.get("torch")
+    if torch is not None:
         torch.set_num_threads(1)
-    except ImportError:  # torch is a dependency; keep workers usable without it for experts
-        pass
 
 
 def init_worker(parent: int | None = None) -> None:
