@@ -10,5 +10,5 @@ if ! command -v chromium >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null || \
         echo "warning: chromium could not be installed; the browser tests will be skipped" >&2
 fi
-export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
+export OPENBLAS_NUM_THREADS=1 OPENBLAS_CORETYPE="${OPENBLAS_CORETYPE:-Haswell}" MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
 exec .venv/bin/python -m pytest "$@"

@@ -7,8 +7,11 @@ CVG summary. The rollouts are the seeded scripted expert on every task, a few do
 condition, at a small image size. `bavo-eval`'s rollout records are pinned too: the expert and the
 frozen-camera reference over one full CVG window under Random-time, and a whole Stage episode.
 
-The values come from Mesa llvmpipe EGL rendering on x86-64; another renderer may differ in the
-image bytes. After a deliberate behaviour change, re-pin with
+The values come from Mesa llvmpipe EGL rendering on x86-64 with OpenBLAS's Haswell (AVX2 + FMA)
+kernels, which tests/conftest.py selects (OPENBLAS_CORETYPE): OpenBLAS otherwise picks kernels by CPU, and
+the SkylakeX and Zen families round the experts' small matrix products differently in the last bit, which
+changed every digest between an Intel AVX-512 and an AMD machine. Another renderer may differ in the image
+bytes. After a deliberate behaviour change, re-pin with
 
     BAVO_DIGEST_PRINT=1 python -m pytest -q -s tests/test_behaviour_digest.py
 
@@ -34,26 +37,26 @@ STEPS = 25
 SEED = 3
 
 ROLLOUT_DIGESTS = {
-    "cube_handoff/clean": "bf17f5d9c5debea525835cf2624eabaa8a6281c4b06dd11f92abc207898f9550",
-    "cube_handoff/stage": "0df577e33231c5132c8dae80edb1199aa53870fca789f3d4a9837a3e97d8f47d",
-    "cube_handoff/random": "b8280a9199c66f6d0eba73a1b0278ccd29d3d721f5e8e81e9eb72ed77b901749",
-    "block_stacking/clean": "65a2485f90b00c6ecf12fe3be463b1505f516964dd2ebf01c0991376219bd41f",
-    "block_stacking/stage": "ec83a3df0d1af92cf6cad5613a05c8e84c70b591c0f6c07754dd2f539f805d42",
-    "block_stacking/random": "5a78b0796204a733a4d7b69d830ee84068783666a53608f6e571a6ef5bd73bdc",
-    "drawer_stowing/clean": "6506cb2a804b3f841761620431d4afea163eb15b201409e4275b1bb53749c664",
-    "drawer_stowing/stage": "926bf8bf6cac1e20af4a8ce26352bed122034a5a67f300a21e2a2cf5c6814c38",
-    "drawer_stowing/random": "f2a5b357d638e598c7a64efc190d3468fa86de606f60b91ab05b72bd75932c90",
-    "slide_retrieval/clean": "58172090c47e893b8fa08b92bd3bf5ec254400f133b6e0e458bd03b622c78002",
-    "slide_retrieval/stage": "b72b46e3cb11372a79d41305feef0722bffaee726b741a817fdb83d3430e262a",
-    "slide_retrieval/random": "f4a9c8c2df214812b4f2fb54c5bd3c4aa20eb2f606d035a02c314e732331b34c",
-    "dustpan_sweeping/clean": "10f0a03b0e011ae104b18ca0f94ca4e68142f30043367fef51adde2f3bec2fec",
-    "dustpan_sweeping/stage": "757361df4c34641864e3638ee19d3b4f8b896d47ccb3c22b6f558c4e7c361f08",
-    "dustpan_sweeping/random": "c56dbec4e6b62754e387cac7424c7b7406f06fd2e6fcfce5e84cd4f9a8a10d69",
+    "cube_handoff/clean": "90999b0331c515f41dbc4336511af652eec89e9ebed81829a6384e8191ab4e19",
+    "cube_handoff/stage": "6c6834ae5afcde089d3869033e42dd9d4094f59aeac7def99b7aa2832a992ee9",
+    "cube_handoff/random": "e3f066fd7d7b365558f8c1fce98f50b2aab4763248a2082c87f14f11384394fd",
+    "block_stacking/clean": "ebd5ef413d3636c14f2b6b9a5402cc0bbb97ec5e8a62c1998a291f0fdaa524e2",
+    "block_stacking/stage": "daf246d8b4bbad90e8da6c6eb6c195c0232cc0b057d552a0d18115a67d76a5a1",
+    "block_stacking/random": "2f10508c903d5fcde6e08680719566fba0c1c8741ff60fc169df29571b025644",
+    "drawer_stowing/clean": "eecc433bb3a9869ae39671749b0d0d52a4e315b848d7b475c214065e70a2dc35",
+    "drawer_stowing/stage": "e75412044f7fe671a5a4064c8a4e9b4a5762d3cb84a7b97d280b08b54205da34",
+    "drawer_stowing/random": "eadee7b685fd255ed85edd16ee1f56db4a22e5aac28d90a52972c04b0892d415",
+    "slide_retrieval/clean": "8ded6e4aa35184639d96282fa3ff3a7c0f857e74ffa01354a41c492b5b9cc44a",
+    "slide_retrieval/stage": "8a7abeaf7bc0ed735a2d9ab2c5adf6d2a182192321f09b98773a1da967ddcce8",
+    "slide_retrieval/random": "d6559ecfb68ca45e1f4307df91ee0c2eb3172be385f187577db9903ce6c0c762",
+    "dustpan_sweeping/clean": "e33893126575c440151be675322e272affc639c6eee29b67e4e66b73f95f9a28",
+    "dustpan_sweeping/stage": "812eb6dc7227203ffa791ff56d6b7088cb9c9fd23a26de7ea98c1a7c7a71e4dd",
+    "dustpan_sweeping/random": "391b26501ad858b252a84e534a6ed3bfa006c1c3ec22f8e9bb22f7228d660b9e",
 }
 RECORD_DIGESTS = {
     "expert/random/70": "237f049e6f4b9c18b5113f975fc5a64b4747a9f4b282852c011f39bbfd71c475",
     "expert-frozen-camera/random/70": "b037e632b94744ebf8df9454f12b421351aea6ce431fb3fe294aef42f70d2846",
-    "expert/stage/full": "024330072d1eebddf1c0d2d151dfab434da2e753eec20c9c56bd84725cc3d3ec",
+    "expert/stage/full": "703c290d546aca8a0079847d9fbf6bddd33d9b195879d7ddf5244ba3d5b01849",
 }
 
 
