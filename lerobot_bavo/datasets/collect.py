@@ -54,6 +54,7 @@ from lerobot_bavo.datasets.collection_record import CollectionRecord, PendingCom
 from lerobot_bavo.datasets.hub import SIDECAR
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
+    exact_fast_episode_stats,
     skip_noop_image_embedding,
 )
 from lerobot_bavo.datasets.staging import (
@@ -384,7 +385,7 @@ class Collector:
         description = self.settings["task_description"]
         episodes_s = 0.0
         try:
-            with skip_noop_image_embedding():
+            with skip_noop_image_embedding(), exact_fast_episode_stats():
                 for b in batch:
                     t0 = time.perf_counter()
                     # a dataset begun before a newer optional annotation existed keeps its own features
