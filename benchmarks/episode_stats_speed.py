@@ -30,6 +30,7 @@ def main() -> None:
 
     from lerobot_bavo.datasets import schema as S
     from lerobot_bavo.datasets.episode_stats import compute_episode_stats as bavo_stats
+    from lerobot_bavo.datasets.episode_stats import writer_stats_inputs
     from lerobot_bavo.datasets.recording import EpisodeRecorder, episode_frames
     from lerobot_bavo.features import ObservationSettings
     from lerobot_bavo.teacher.simulator import teacher_targets
@@ -40,9 +41,7 @@ def main() -> None:
     finally:
         recorder.close()
     targets = teacher_targets(record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX)
-    cols = {k: v for k, v in episode_frames(record, targets).items() if k != S.OBS_IMAGE}
-    cols = {k: (v.reshape(-1) if v.ndim == 2 and v.shape[1] == 1 else v) for k, v in cols.items()}  # as LeRobot stacks them
-    features = {k: {"dtype": str(v.dtype), "shape": v.shape[1:] or (1,)} for k, v in cols.items()}
+    cols, features = writer_stats_inputs({k: v for k, v in episode_frames(record, targets).items() if k != S.OBS_IMAGE})
     dims = sum(int(v.reshape(len(v), -1).shape[1]) for v in cols.values())
     print(f"{args.task} seed {args.seed}: {record.length} frames, {len(cols)} numeric features, {dims} dimensions")
 

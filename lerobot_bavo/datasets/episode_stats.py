@@ -65,8 +65,10 @@ def vector_stats(array: np.ndarray) -> dict[str, np.ndarray]:
     lo = np.min(batch, axis=0)
     hi = np.max(batch, axis=0)
     edges = np.stack([np.linspace(lo[i] - 1e-10, hi[i] + 1e-10, QUANTILE_BINS + 1) for i in range(dims)])
-    mean += (np.mean(batch, axis=0) - mean) * (n / n)
-    mean_sq += (np.mean(batch**2, axis=0) - mean_sq) * (n / n)
+    # LeRobot then adds (batch mean - running mean) * (n / n): the batch mean is the same array again, so the
+    # difference is mean - mean. Kept because it is not a no-op: -0.0 becomes +0.0 and inf becomes nan.
+    mean += (mean - mean) * (n / n)
+    mean_sq += (mean_sq - mean_sq) * (n / n)
 
     # get_statistics
     variance = mean_sq - mean**2
@@ -103,6 +105,15 @@ def vector_stats(array: np.ndarray) -> dict[str, np.ndarray]:
     if keepdims:  # _reshape_for_vector_stats
         stats = {k: v if k == "count" else v.reshape(1) for k, v in stats.items()}
     return stats
+
+
+def writer_stats_inputs(columns: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+    """(episode data, features) as LeRobot's writer hands an episode's numeric columns (frame-leading arrays)
+    to `compute_episode_stats`: (T, 1) columns as (T,), features with dtype and per-frame shape. For comparing
+    this module with LeRobot's function on real episodes (test and benchmark)."""
+    data = {k: (v.reshape(-1) if v.ndim == 2 and v.shape[1] == 1 else v) for k, v in columns.items()}
+    features = {k: {"dtype": str(v.dtype), "shape": v.shape[1:] or (1,)} for k, v in data.items()}
+    return data, features
 
 
 def compute_episode_stats(episode_data: dict, features: dict, quantile_list: list[float] | None = None) -> dict:
