@@ -6,6 +6,10 @@ columns as the writer hands them to LeRobot (images excluded: both use LeRobot's
 both functions on the same columns, alternating, and prints CPU ms per episode, the ratio, and whether the
 results are identical (keys, shapes, dtypes, bytes).
 
+Then the same for the video feature's streaming image statistics: the episode's frames fed one at a time,
+down-sampled as LeRobot's encoder thread does, to LeRobot's `RunningQuantileStats` and to
+`lerobot_bavo.datasets.video_stats.DeferredFrameStats` (updates replayed once per episode).
+
     python benchmarks/episode_stats_speed.py [--task cube_handoff] [--repeats 3]
 """
 
@@ -60,6 +64,30 @@ def main() -> None:
     print(f"CPU per episode (best of {args.repeats}): LeRobot {best['lerobot'] * 1000:.0f} ms, "
           f"lerobot_bavo {best['bavo'] * 1000:.0f} ms, ratio {best['lerobot'] / best['bavo']:.1f}x; "
           f"identical: {identical}")
+
+    from lerobot.datasets.compute_stats import RunningQuantileStats, auto_downsample_height_width
+
+    from lerobot_bavo.datasets.video_stats import DeferredFrameStats
+
+    def frame_stats(cls):
+        tracker = cls()
+        for frame in record.rgb:  # what `_CameraEncoderThread.run` hands to the tracker, per frame
+            small = auto_downsample_height_width(frame.transpose(2, 0, 1))
+            tracker.update(small.transpose(1, 2, 0).reshape(-1, small.shape[0]))
+        return tracker.get_statistics()
+
+    times = {"lerobot": [], "bavo": []}
+    for _ in range(args.repeats):
+        for name, cls in (("lerobot", RunningQuantileStats), ("bavo", DeferredFrameStats)):
+            c0 = time.process_time()
+            results[name] = frame_stats(cls)
+            times[name].append(time.process_time() - c0)
+    a, b = results["lerobot"], results["bavo"]
+    identical = list(a) == list(b) and all(a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes() for k in a)
+    best = {k: min(v) for k, v in times.items()}
+    print(f"streaming image statistics, {record.length} frames {record.rgb.shape[1]} x {record.rgb.shape[2]} "
+          f"(best of {args.repeats}): LeRobot {best['lerobot'] * 1000:.0f} ms, lerobot_bavo "
+          f"{best['bavo'] * 1000:.0f} ms, ratio {best['lerobot'] / best['bavo']:.1f}x; identical: {identical}")
 
 
 if __name__ == "__main__":

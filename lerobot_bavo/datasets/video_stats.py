@@ -1,0 +1,140 @@
+"""LeRobot 0.6.1's streaming image statistics, bit for bit, with the per-frame work done once per episode.
+
+Why: with `streaming_encoding=True` LeRobot's encoder thread (`video_utils._CameraEncoderThread`) feeds
+every frame of a video feature to a `compute_stats.RunningQuantileStats`: it converts the (down-sampled,
+here 120 x 160) frame to float32, takes per-channel means, means of squares, minima and maxima along
+axis 0 of an (H * W, 3) array (a reduction whose inner loop runs over 3 channels, ~1.5 ms per frame on
+these machines) and a 5000-bin `np.histogram` per channel. For a 434-frame Cube Handoff episode that is
+~0.65 s of the collection writer's CPU (issue 11 profile), for statistics of uint8 pixels.
+
+`DeferredFrameStats` is a `RunningQuantileStats` that, for uint8 frames, only keeps each frame in
+`update` and replays the same sequence of updates in `get_statistics` with whole-episode array
+operations. Why the replay gives the same bits:
+
+- min / max: exact whatever the order; the per-frame values are taken in one `min` / `max` over frames.
+- A frame's mean and mean of squares: `np.mean(batch, axis=0)` of a C-contiguous (N, C) float32 batch
+  sums in float32 row after row (numpy's reduction over the outer axis adds whole rows; no pairwise
+  summation across rows), then divides by `np.intp(N)`. The last element of `np.add.accumulate` along
+  the same axis is that same left-to-right float32 sum, and the division is done by the same call.
+  Squares of uint8 values are exact in float32 (<= 65025 < 2**24).
+- The running mean / mean of squares, the count and the range: the original statements, per frame, on
+  (C,) vectors, in frame order.
+- Histograms: a bin's count is the number of values inside its edges, so frames histogrammed with the
+  same edges add up to one histogram of all of them; the values are integers 0..255, so that histogram
+  is a weighted histogram of the 256 values (integer weights: exact in float64). Whenever a frame widens
+  the range, the frames before it are histogrammed with the old edges first and then LeRobot's own
+  `_adjust_histograms` redistributes them, exactly as the per-frame updates would.
+
+Anything that is not a uint8 batch (float frames, depth maps) goes to LeRobot's own `update` after the
+kept frames are replayed, so the order of updates is always the original one. `tests/test_video_stats.py`
+compares every statistic bit for bit with LeRobot's class on real episode frames and adversarial ones
+(constant frames, ranges that widen mid-episode, one channel, mixed dtypes).
+`lerobot_private.deferred_video_frame_stats` installs it for the collector's writer sessions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from lerobot.datasets.compute_stats import RunningQuantileStats
+
+FRAME_CHUNK = 32  # frames reduced at a time in the replay (bounds its buffers: 32 frames x 57,600 values x 5 bytes)
+_VALUES = np.arange(256, dtype=np.float32)  # every value a uint8 pixel can take, as the float32 batch holds it
+
+
+class DeferredFrameStats(RunningQuantileStats):
+    """`RunningQuantileStats` with uint8 updates deferred to `get_statistics` (same statistics, bit for bit)."""
+
+    def __init__(self, quantile_list: list[float] | None = None, num_quantile_bins: int = 5000):
+        super().__init__(quantile_list, num_quantile_bins)
+        self._pending: list[np.ndarray] = []  # kept uint8 frames, (N, C) C-contiguous each, all one shape
+
+    def update(self, batch: np.ndarray) -> None:
+        batch = np.asarray(batch)
+        rows = batch.reshape(-1, batch.shape[-1])
+        if _deferrable(rows) and (not self._pending or rows.shape == self._pending[0].shape):
+            self._pending.append(np.array(rows, order="C", copy=True))  # the caller may reuse its buffer
+            return
+        self._replay()
+        if _deferrable(rows):  # a uint8 frame of another size starts a new run
+            self._pending.append(np.array(rows, order="C", copy=True))
+            return
+        super().update(batch)
+
+    def get_statistics(self) -> dict[str, np.ndarray]:
+        self._replay()
+        return super().get_statistics()
+
+    def _replay(self) -> None:
+        """Apply the kept frames' updates in order, as LeRobot's `update` would have one frame at a time."""
+        if not self._pending:
+            return
+        frames = np.stack(self._pending)  # (F, N, C) uint8
+        self._pending = []
+        n_frames, n, channels = frames.shape
+        frame_min = np.empty((n_frames, channels), dtype=np.float32)
+        frame_max = np.empty((n_frames, channels), dtype=np.float32)
+        frame_mean = np.empty((n_frames, channels), dtype=np.float32)
+        frame_mean_sq = np.empty((n_frames, channels), dtype=np.float32)
+        # Frames side by side as lanes: (N, frames x C), so that a reduction over axis 0 is the row-after-row
+        # float32 sum numpy does for one (N, C) frame, for many frames at once. Buffers are reused across chunks.
+        lanes_u8 = np.empty((n, FRAME_CHUNK * channels), dtype=np.uint8)
+        lanes = np.empty((n, FRAME_CHUNK * channels), dtype=np.float32)
+        for start in range(0, n_frames, FRAME_CHUNK):
+            k = min(FRAME_CHUNK, n_frames - start)
+            u8 = lanes_u8[:, :k * channels]
+            f32 = lanes[:, :k * channels]
+            np.copyto(u8.reshape(n, k, channels), frames[start:start + k].transpose(1, 0, 2))
+            np.copyto(f32, u8)
+            done = slice(start, start + k)
+            frame_min[done] = u8.min(axis=0).reshape(k, channels)
+            frame_max[done] = u8.max(axis=0).reshape(k, channels)
+            frame_mean[done] = np.add.reduce(f32, axis=0).reshape(k, channels)
+            np.multiply(f32, f32, out=f32)
+            frame_mean_sq[done] = np.add.reduce(f32, axis=0).reshape(k, channels)
+        count = np.intp(n)  # what np.mean divides by
+        np.true_divide(frame_mean, count, out=frame_mean, casting="unsafe")
+        np.true_divide(frame_mean_sq, count, out=frame_mean_sq, casting="unsafe")
+
+        run_start = 0  # first frame not yet added to the histograms
+        for f in range(n_frames):
+            if self._count == 0:
+                self._mean = frame_mean[f].copy()
+                self._mean_of_squares = frame_mean_sq[f].copy()
+                self._min = frame_min[f].copy()
+                self._max = frame_max[f].copy()
+                self._histograms = [np.zeros(self._num_quantile_bins) for _ in range(channels)]
+                self._bin_edges = [
+                    np.linspace(self._min[i] - 1e-10, self._max[i] + 1e-10, self._num_quantile_bins + 1)
+                    for i in range(channels)
+                ]
+            else:
+                if channels != self._mean.size:
+                    raise ValueError("The length of new vectors does not match the initialized vector length.")
+                new_max, new_min = frame_max[f], frame_min[f]
+                max_changed = np.any(new_max > self._max)
+                min_changed = np.any(new_min < self._min)
+                self._max = np.maximum(self._max, new_max)
+                self._min = np.minimum(self._min, new_min)
+                if max_changed or min_changed:
+                    self._add_to_histograms(frames[run_start:f])
+                    run_start = f
+                    self._adjust_histograms()
+            self._count += n
+            self._mean += (frame_mean[f] - self._mean) * (n / self._count)
+            self._mean_of_squares += (frame_mean_sq[f] - self._mean_of_squares) * (n / self._count)
+        self._add_to_histograms(frames[run_start:])
+
+    def _add_to_histograms(self, frames: np.ndarray) -> None:
+        """Add (F, N, C) uint8 frames to the histograms with the current edges (one weighted histogram per channel)."""
+        if frames.shape[0] == 0:
+            return
+        for i in range(frames.shape[2]):
+            counts = np.bincount(frames[:, :, i].ravel(), minlength=256).astype(np.float64)
+            hist, _ = np.histogram(_VALUES, bins=self._bin_edges[i], weights=counts)
+            self._histograms[i] += hist
+
+
+def _deferrable(rows: np.ndarray) -> bool:
+    """A batch the replay reproduces exactly: uint8 (N, C) with C >= 2. With one channel numpy's mean runs
+    along the contiguous axis, which it sums pairwise, not row after row, so such batches stay with LeRobot."""
+    return rows.dtype == np.uint8 and rows.ndim == 2 and rows.shape[0] > 0 and rows.shape[1] >= 2
