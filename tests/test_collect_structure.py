@@ -69,6 +69,30 @@ def test_in_process_pool_runs_lazily_and_reports_errors_through_the_future():
         WorkerPool(-1)
 
 
+def test_light_import_pool_workers_record_without_pytorch(tmp_path, monkeypatch):
+    """`bavo-collect`'s spawned workers (`light_import=True`) import neither LeRobot nor PyTorch for an expert
+    job; a default pool's workers do (the package registers its LeRobot types), and the switch does not
+    outlive the pool in this process's environment."""
+    import os
+    import sys
+
+    (tmp_path / "light_probe.py").write_text(
+        "import sys\n"
+        "def probe(job):\n"
+        "    import lerobot_bavo.datasets.staging  # what run_job imports\n"
+        "    return 'torch' in sys.modules, 'lerobot' in sys.modules\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), *sys.path]))
+    monkeypatch.delenv("BAVO_LIGHT_IMPORT", raising=False)
+    import light_probe
+
+    with WorkerPool(1, light_import=True) as pool:
+        assert pool.submit(light_probe.probe, {}).result(timeout=120) == (False, False)
+    assert "BAVO_LIGHT_IMPORT" not in os.environ
+    with WorkerPool(1) as pool:
+        assert pool.submit(light_probe.probe, {}).result(timeout=120) == (True, True)
+
+
 def test_process_cache_rebuilds_and_closes_on_a_new_key():
     closed, built = [], []
     cache = ProcessCache(close=closed.append)

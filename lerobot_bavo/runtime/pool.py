@@ -11,7 +11,9 @@ to keep the set-up between jobs without rebuilding it per episode.
   uses a `ProcessPoolExecutor` of that many processes, started with `start_method` ("spawn" by
   default: a fresh interpreter, no GL context or torch thread pool inherited from the parent; `None`
   is the platform's default, "fork" on Linux, which `bavo-eval` keeps so that a job function replaced
-  in a `python -c` script reaches its workers).
+  in a `python -c` script reaches its workers). `light_import=True` starts spawned workers with
+  `BAVO_LIGHT_IMPORT=1` (no LeRobot / PyTorch import, ~2.8 s of CPU per worker on these machines) for jobs
+  that never touch a policy, such as `bavo-collect`'s expert episodes.
 - `ProcessCache`: one keyed slot per process. A job asks for the set-up of its key; a different key
   closes the old set-up and builds the new one. It is a module-level object in the job's module because
   that is the only state a pool worker keeps between jobs; it is never shared across processes.
@@ -29,11 +31,12 @@ from typing import Any
 class WorkerPool:
     """Runs jobs in `workers` spawned processes, or in this process when `workers == 0`."""
 
-    def __init__(self, workers: int, start_method: str | None = "spawn"):
+    def __init__(self, workers: int, start_method: str | None = "spawn", light_import: bool = False):
         if workers < 0:
             raise ValueError(f"workers must be >= 0, got {workers}")
         self.workers = workers
         self._executor: cf.ProcessPoolExecutor | None = None
+        self._restore_env: tuple[str, str | None] | None = None
         if workers == 0:
             from lerobot_bavo.runtime.process import limit_threads
 
@@ -43,6 +46,13 @@ class WorkerPool:
 
             os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             os.environ.setdefault("OMP_NUM_THREADS", "1")
+            if light_import and start_method == "spawn":
+                # A spawned worker imports lerobot_bavo while unpickling its first call, before any initializer
+                # runs, so the switch has to be in the environment it inherits. The pool spawns its processes
+                # as jobs arrive, so it stays set in this process until `shutdown` (this process has long
+                # finished its own imports; it only reads the variable when lerobot_bavo is first imported).
+                self._restore_env = ("BAVO_LIGHT_IMPORT", os.environ.get("BAVO_LIGHT_IMPORT"))
+                os.environ["BAVO_LIGHT_IMPORT"] = "1"
             self._executor = cf.ProcessPoolExecutor(
                 max_workers=workers, mp_context=multiprocessing.get_context(start_method),
                 initializer=init_worker, initargs=(os.getpid(),))
@@ -68,6 +78,13 @@ class WorkerPool:
         """Stop the workers; `cancel` drops queued jobs (after an error: don't run them first)."""
         if self._executor is not None:
             self._executor.shutdown(wait=wait, cancel_futures=cancel)
+        if self._restore_env is not None:
+            name, value = self._restore_env
+            self._restore_env = None
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
     def __enter__(self) -> WorkerPool:
         return self
