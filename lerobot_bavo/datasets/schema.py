@@ -243,15 +243,37 @@ def channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)) 
     """Statistics over all leading axes of (..., C) values, per channel: LeRobot's stat keys.
 
     Returns min, max, mean, std (population), count and q01/q10/q50/q90/q99, each (C,) (count (1,)).
+    The values are those of numpy's `min`, `max`, `mean`, `std` and `quantile` along axis 0 of the float64
+    (M, C) array, bit for bit, computed so that a whole dataset's point cloud (M ~ 11 million points) takes
+    a few seconds instead of ~8 (it runs once at the end of `bavo-collect`, on one core): the quantiles in
+    one partition per channel of a channel-major copy; the squared deviations for the std in row blocks,
+    each block's sum continuing the previous one row after row, as numpy's axis-0 sum adds rows, instead
+    of in one array as large as the input. `tests/test_schema_stats.py` checks it against numpy's calls.
     """
     flat = np.asarray(values, dtype=np.float64).reshape(-1, values.shape[-1])
+    if flat.shape[0] == 0:
+        raise ValueError("channel_stats needs at least one value per channel")
+    count = np.intp(flat.shape[0])  # what numpy's mean / var divide by
+    by_channel = np.ascontiguousarray(flat.T)
+    mean = np.true_divide(np.add.reduce(flat, axis=0), count)
+    squares = None
+    for start in range(0, flat.shape[0], _STATS_BLOCK_ROWS):
+        block = flat[start:start + _STATS_BLOCK_ROWS] - mean
+        np.multiply(block, block, out=block)
+        if squares is not None:
+            block = np.concatenate([squares[None], block])
+        squares = np.add.reduce(block, axis=0)
     stats = {
-        "min": flat.min(0), "max": flat.max(0), "mean": flat.mean(0), "std": flat.std(0),
+        "min": by_channel.min(axis=1), "max": by_channel.max(axis=1), "mean": mean,
+        "std": np.sqrt(np.true_divide(squares, np.maximum(count, 0))),
         "count": np.array([flat.shape[0]]),
     }
-    for q in quantiles:
-        stats[f"q{int(round(q * 100)):02d}"] = np.quantile(flat, q, axis=0)
+    for q, value in zip(quantiles, np.quantile(by_channel, list(quantiles), axis=1)):
+        stats[f"q{int(round(q * 100)):02d}"] = value
     return stats
+
+
+_STATS_BLOCK_ROWS = 1 << 18  # rows of squared deviations held at a time by `channel_stats` (12 MB for 6 channels)
 
 
 def tile_channel_stats(stats: dict[str, np.ndarray], n_points: int) -> dict[str, np.ndarray]:
