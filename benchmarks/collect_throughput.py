@@ -95,16 +95,6 @@ def main() -> None:
     if root is None:
         tmp = Path(tempfile.mkdtemp(prefix="bavo_bench_"))
         root = tmp / "ds"
-    commits: list[dict] = []
-    real_commit = C.Collector._commit
-
-    def timed_commit(self, batch, discards, next_seed, timings=None):
-        t0, c0 = time.perf_counter(), time.process_time()  # process time includes the encoder threads
-        real_commit(self, batch, discards, next_seed, timings)
-        commits.append({"t": time.perf_counter(), "seconds": time.perf_counter() - t0,
-                        "cpu": time.process_time() - c0, "episodes": list(batch)})
-
-    C.Collector._commit = timed_commit
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     summary = C.collect(C.CollectConfig(task=args.task, condition=args.condition, episodes=args.episodes,
@@ -113,6 +103,13 @@ def main() -> None:
     wall = time.perf_counter() - t0
     load1 = os.getloadavg()
 
+    # The collector's own record of each commit (`datasets.writer.WriterSession`): when it ended (seconds
+    # since the run started), the CPU this process spent writing it (LeRobot's encoder threads included),
+    # and its episodes; the workers' summaries give each episode's worker-side costs.
+    from lerobot_bavo.datasets.collection_record import CollectionRecord
+
+    commits = [{"t": t0 + c["end_s"], "cpu": c["cpu_s"], "seconds": c["busy_s"], "episodes": c["episodes"]}
+               for c in CollectionRecord.load(root).runs[-1].get("timings", {}).get("commits", [])]
     eps = [e for c in commits for e in c["episodes"]]
     frames = summary["frames"]
     startup = commits[0]["t"] - t0 if commits else float("nan")

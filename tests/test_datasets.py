@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -487,3 +488,99 @@ def test_teacher_depth_reused_from_the_observation_is_the_segmentation_pass_dept
     for t, (read_back, reused) in enumerate(both):
         assert reused.dtype == read_back.dtype == np.float32
         assert np.array_equal(read_back, reused), f"frame {t}: observation depth differs from the segmentation pass"
+
+
+# ----------------------------------------------------------------------------- the background writer
+def _counting_run_job(real_run_job, calls: list, interrupt_at: int | None = None, before_interrupt=None):
+    def run(job):
+        calls.append(job["seed"])
+        if interrupt_at is not None and len(calls) == interrupt_at:
+            if before_interrupt is not None:
+                before_interrupt()
+            raise KeyboardInterrupt  # Ctrl+C while the main loop waits on an attempt
+        return real_run_job(job)
+
+    return run
+
+
+def test_workers_keep_recording_while_the_writer_writes(tmp_path, monkeypatch):
+    """While the writer thread is busy with an episode, the main loop keeps handing out attempts, up to the
+    backlog bound (--commit-every + attempts in flight), and the sessions still hold exactly --commit-every
+    episodes each, in seed order."""
+    import threading
+
+    import lerobot_bavo.datasets.collect as collect_mod
+    from lerobot_bavo.datasets.writer import WriterSession
+
+    calls: list[int] = []
+    monkeypatch.setattr(collect_mod, "run_job", _counting_run_job(collect_mod.run_job, calls))
+    real_add = WriterSession.add
+    seen: dict = {}
+    released = threading.Event()
+
+    def slow_add(self, summary, abort=None):
+        if not released.is_set():  # the first episode: hold the writer until the main loop has run ahead
+            deadline = time.monotonic() + 60
+            while len(calls) < 3 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(0.5)  # would the loop run past its bound?
+            seen["attempts_while_writing"] = len(calls)
+            released.set()
+        return real_add(self, summary, abort)
+
+    monkeypatch.setattr(WriterSession, "add", slow_add)
+    root = tmp_path / "overlap"
+    summary = collect(_config(root, episodes=4, commit_every=2))
+    # in-process pool: 1 attempt in flight, so the bound is 2 + 1 resolved episodes waiting for the writer
+    assert seen["attempts_while_writing"] == 3
+    assert summary["episodes"] == 4
+    rec = read_sidecar(root)
+    commits = rec["runs"][-1]["timings"]["commits"]
+    assert [[e["seed"] for e in c["episodes"]] for c in commits] == [[0, 1], [2, 3]]
+    assert [e["seed"] for e in rec["episodes"]] == [0, 1, 2, 3]
+    assert rec["pending_commit"] is None
+    check_files(root)
+
+
+def test_ctrl_c_with_a_writer_session_open_rolls_it_back(tmp_path, monkeypatch):
+    """Ctrl+C in the main loop while the writer holds an open, uncommitted session: the session is rolled
+    back, its episodes stay staged, and the next run commits them without recording them again."""
+    import lerobot_bavo.datasets.collect as collect_mod
+
+    from lerobot_bavo.datasets.writer import WriterSession
+
+    calls: list[int] = []
+    added: list[int] = []
+    real_run_job, real_add = collect_mod.run_job, WriterSession.add
+
+    def counting_add(self, summary, abort=None):
+        real_add(self, summary, abort)
+        added.append(summary["seed"])
+
+    def session_holds_an_episode():  # interrupt only once the open session has an episode saved in it
+        deadline = time.monotonic() + 60
+        while not added and time.monotonic() < deadline:
+            time.sleep(0.02)
+
+    root = tmp_path / "interrupted"
+    with monkeypatch.context() as m:
+        m.setattr(WriterSession, "add", counting_add)
+        m.setattr(collect_mod, "run_job", _counting_run_job(real_run_job, calls, interrupt_at=3,
+                                                            before_interrupt=session_holds_an_episode))
+        with pytest.raises(KeyboardInterrupt):
+            collect(_config(root, episodes=4, commit_every=3))
+    assert added[:1] == [0]  # seed 0 was saved into the session (not committed) when Ctrl+C came
+    rec = read_sidecar(root)
+    assert rec["episodes"] == [] and rec["pending_commit"] is None  # rolled back: nothing half-written stays
+    staged = sorted(p.name for p in (root / ".bavo_staging").glob("seed_*.json"))
+    assert staged == ["seed_00000000.json", "seed_00000001.json"]
+    check_files(root)
+
+    calls.clear()
+    with monkeypatch.context() as m:
+        m.setattr(collect_mod, "run_job", _counting_run_job(real_run_job, calls))
+        summary = collect(_config(root, episodes=4, commit_every=3))
+    assert calls == [2, 3]  # the staged episodes were reused
+    assert summary["episodes"] == 4
+    assert [e["seed"] for e in read_sidecar(root)["episodes"]] == [0, 1, 2, 3]
+    check_files(root)

@@ -7,16 +7,19 @@ How it works:
 - Episodes are keyed by seed: attempt k uses seed `--seed` + k for the env (layout, occlusion
   schedule) and the expert (timing jitter). The dataset holds the first `--episodes` successful
   seeds, in seed order; unsuccessful attempts are discarded and counted.
-- Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS/torch thread)
-  record an episode, compute its teacher targets and stage it as `<root>/.bavo_staging/seed_*.npz`
+- Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no LeRobot or
+  PyTorch import: `BAVO_LIGHT_IMPORT=1`) record an episode, compute its teacher targets and stage it as `<root>/.bavo_staging/seed_*.npz`
   plus a `seed_*.json` marker written last (atomic renames).
 - `--executor ray`: every episode rollout is a Ray task instead (on a private local Ray with `--workers`
   CPUs, or the cluster at `--ray-address`). A Ray worker may be on another machine, so it returns the
   staged files' bytes and this process writes them into the same staging folder; everything after
   (the writer, resume, the record) is the same. A worker lost mid-episode is retried by Ray.
-- The main process is the only writer into the LeRobotDataset. Every `--commit-every` episodes it
-  opens the dataset with `LeRobotDataset.resume`, appends the staged episodes in seed order,
-  `finalize()`s, and only then records them in `meta/bavo_collection.json` (the collection record).
+- The main process is the only writer into the LeRobotDataset. A writer thread (`writer.BackgroundWriter`)
+  appends each kept episode as soon as it and every lower seed are resolved, so the workers keep recording
+  while it writes; every `--commit-every` episodes form one LeRobot writer session (`LeRobotDataset.resume`,
+  the episodes in seed order, `finalize()`), and only then are they recorded in `meta/bavo_collection.json`
+  (the collection record). No new attempts start while more than `--commit-every` plus the attempts
+  allowed in flight (2 x `--workers` locally) resolved episodes wait for the writer (bounds the staging folder).
 - Resume: re-running the same command continues where a killed run stopped. LeRobot keeps its
   parquet writers open until `finalize()`, so a kill inside a commit leaves unreadable files. Each
   commit therefore first snapshots `meta/info.json`, `meta/stats.json`, `meta/tasks.parquet` and
@@ -28,9 +31,10 @@ How it works:
   dataset card (README.md), and optionally `push_to_hub` (needs `huggingface-cli login`).
 
 Where each job lives: this module has the CLI, its config and the run (`Collector`, `SeedScheduler`);
-`staging.py` records and stages one episode (the worker side); `collection_record.py` is the record;
-`transaction.py` snapshots and rolls back a writer session; `lerobot_private.py` holds every use of
-LeRobot's private internals; `runtime/pool.py` is the worker pool `bavo-eval` uses too.
+`staging.py` records and stages one episode (the worker side); `writer.py` is the writer side (a commit's
+writer session, the background writer thread); `collection_record.py` is the record; `transaction.py`
+snapshots and rolls back a writer session; `lerobot_private.py` holds every use of LeRobot's private
+internals; `runtime/pool.py` is the worker pool `bavo-eval` uses too.
 """
 
 from __future__ import annotations
@@ -50,15 +54,9 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_bavo.datasets import schema as S
-from lerobot_bavo.datasets.collection_record import CollectionRecord, PendingCommit
+from lerobot_bavo.datasets.collection_record import CollectionRecord
 from lerobot_bavo.datasets.hub import SIDECAR
-from lerobot_bavo.datasets.lerobot_private import (
-    abandon_writer,
-    exact_fast_episode_stats,
-    skip_noop_image_embedding,
-)
 from lerobot_bavo.datasets.staging import (
-    load_staged,
     receive_shipped,
     run_job,
     seed_of,
@@ -70,6 +68,7 @@ from lerobot_bavo.datasets.transaction import (
     WriterSessionSnapshot,
     remove_stray_dirs,
 )
+from lerobot_bavo.datasets.writer import BackgroundWriter, WriterSession
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
 from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments, executor_problem
@@ -340,75 +339,21 @@ class Collector:
 
     # -------------------------------------------------------------- commit
     def _commit(self, batch: list[dict], discards: list[dict], next_seed: int, timings: dict | None = None) -> None:
-        """Append `batch` (summaries of staged kept episodes, seed order) to the dataset; an interruption
-        (error, Ctrl+C) before the record is saved rolls the writer session back (`_rollback`)."""
-        t0 = time.perf_counter()
-        self.snapshot.take()
-        self.record.pending_commit = PendingCommit([b["seed"] for b in batch], next_seed)
-        self._save_record()
-        try:  # until the record says so, the session is pending: any interruption rolls it back
-            first_index = self._write_batch(batch, {} if timings is None else timings)
-            for i, b in enumerate(batch):
-                self.record.episodes.append({"episode_index": first_index + i, "seed": b["seed"],
-                                             "length": b["length"], "recoveries": b.get("recoveries")})
-            self.record.discarded.extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
-                                         for d in discards)
-            self.record.next_seed = next_seed
-            self.record.pending_commit = None
-            self.record.complete = False
-            self._save_record()
+        """Append `batch` (summaries of staged kept episodes, seed order) to the dataset in one writer session
+        (`writer.WriterSession`), here and now; an interruption (error, Ctrl+C) before the record is saved
+        rolls the session back. `bavo-teleop` commits each human episode this way; `bavo-collect` streams its
+        episodes into sessions from a background thread (`writer.BackgroundWriter`)."""
+        session = WriterSession(self, max(b["length"] for b in batch), timings)
+        try:
+            for d in discards:
+                session.add_discard(d)
+            for b in batch:
+                session.add(b)
         except BaseException:
             logger.warning("interrupted during a commit: rolling it back")
-            self._rollback()
+            session.abort()
             raise
-        for b in batch:
-            self._drop_staged(b["seed"])
-        for d in discards:
-            self._drop_staged(d["seed"])
-        self.snapshot.discard()
-        logger.info("committed %d episodes (seeds %s) in %.1f s", len(batch), [b["seed"] for b in batch],
-                    time.perf_counter() - t0)
-
-    def _write_batch(self, batch: list[dict], timings: dict) -> int:
-        """One LeRobot writer session: resume, add the staged episodes, finalize. Returns the first new index.
-
-        Appends to `timings["episode_write_s"]` the seconds each episode took (its add_frame calls and
-        save_episode) and to `timings["session_s"]` the session's open + finalize overhead."""
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-        t_session = time.perf_counter()
-        max_len = max(b["length"] for b in batch)
-        # The streaming encoder's queue must hold a whole episode: when it is full LeRobot drops frames.
-        ds = LeRobotDataset.resume(self.cfg.repo_id, root=self.root, video_backend="pyav",
-                                   streaming_encoding=self.cfg.use_videos, encoder_queue_maxsize=max_len + 16)
-        first_index = ds.meta.total_episodes
-        description = self.settings["task_description"]
-        episodes_s = 0.0
-        try:
-            with skip_noop_image_embedding(), exact_fast_episode_stats():
-                for b in batch:
-                    t0 = time.perf_counter()
-                    # a dataset begun before a newer optional annotation existed keeps its own features
-                    cols = {k: v for k, v in load_staged(self.staging, b["seed"]).items()
-                            if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
-                    n = cols[S.ACTION].shape[0]
-                    if n != b["length"]:
-                        raise CollectionError(f"staged episode seed {b['seed']} has {n} frames, its marker says {b['length']}")
-                    for t in range(n):
-                        frame = {k: v[t] for k, v in cols.items()}
-                        frame["task"] = description
-                        ds.add_frame(frame)
-                    ds.save_episode()
-                    dt = time.perf_counter() - t0
-                    episodes_s += dt
-                    timings.setdefault("episode_write_s", []).append(round(dt, 3))
-            ds.finalize()
-        except BaseException:
-            abandon_writer(ds)
-            raise
-        self._verify_videos(first_index, batch)
-        timings.setdefault("session_s", []).append(round(time.perf_counter() - t_session - episodes_s, 3))
-        return first_index
+        session.close(next_seed)
 
     def _verify_videos(self, first_index: int, batch: list[dict]) -> None:
         """Every committed episode's video segment must cover all its frames (no dropped frames)."""
@@ -463,35 +408,51 @@ class Collector:
                      "committed_before": committed, "workers": cfg.workers, "executor": cfg.executor, "attempts": 0,
                      "reused_staged": len(sched.results)}
         timings: dict[str, list] = {}
-        batch: list[dict] = []
-        discards: list[dict] = []
+        needed = requested - committed
+        handed = 0  # kept episodes handed to the writer this run
+        discarded = len(self.record.discarded)
         max_discards = int(cfg.max_discard_ratio * requested) + 10
         bar = _progress(total=requested, initial=committed, enabled=cfg.progress)
-        bar.set_postfix(discarded=len(self.record.discarded))
-        pool = self._pool() if committed < requested else None
+        bar.set_postfix(discarded=discarded)
+        pool = self._pool() if needed > 0 else None
         window = pool.max_in_flight if on_ray and pool is not None else max(1, 2 * cfg.workers)
+        writer = None
+        if needed > 0:
+            from lerobot_bavo.envs.tasks import TASKS
+
+            max_frames = cfg.episode_length or TASKS.lookup(cfg.task).max_episode_steps
+            writer = BackgroundWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start)
+        # No more attempts while this many resolved episodes wait for the writer (bounds the staging folder).
+        max_backlog = cfg.commit_every + window
         try:
-            while committed < requested:
+            while handed < needed:
+                writer.raise_if_failed()
                 for summary in sched.resolved():  # finished attempts, in seed order
+                    writer.put(summary)
                     if summary["kept"]:
-                        batch.append(summary)
+                        handed += 1
                         bar.update(1)
                     else:
-                        discards.append(summary)
-                        self._check_discards(len(self.record.discarded) + len(discards), max_discards,
-                                             committed + len(batch), bar)
-                    if committed + len(batch) >= requested or len(batch) >= cfg.commit_every:
+                        discarded += 1
+                        self._check_discards(discarded, max_discards, committed + handed, bar)
+                    if handed >= needed:
                         break
-                if batch and (len(batch) >= cfg.commit_every or committed + len(batch) >= requested):
-                    self._commit(batch, discards, sched.next_seed, timings)
-                    committed += len(batch)
-                    batch, discards = [], []
-                    continue
-                for seed in sched.seeds_to_attempt(wanted=requested - committed - len(batch),
-                                                   window=window):
-                    sched.submit(pool, job_fn, self._job(seed))
-                    run_stats["attempts"] += 1
-                sched.wait()
+                if handed >= needed:
+                    break
+                if writer.backlog < max_backlog:
+                    for seed in sched.seeds_to_attempt(wanted=needed - handed, window=window):
+                        sched.submit(pool, job_fn, self._job(seed))
+                        run_stats["attempts"] += 1
+                if sched.in_flight or sched.next_seed in sched.results:
+                    sched.wait()
+                else:  # the writer's backlog is full and nothing runs: wait for it
+                    writer.wait_for_progress()
+            if writer is not None:
+                writer.finish()
+        except BaseException:
+            if writer is not None:
+                writer.abort()  # rolls back a session that has not reached its commit point
+            raise
         finally:
             bar.close()
             if pool is not None:
@@ -506,7 +467,7 @@ class Collector:
             from lerobot_bavo.runtime.ray_pool import RayPool
 
             return RayPool(self.cfg.workers, address=self.cfg.ray_address)
-        return WorkerPool(self.cfg.workers)
+        return WorkerPool(self.cfg.workers, light_import=True)  # expert episodes: no LeRobot / PyTorch in workers
 
     def _job(self, seed: int) -> dict:
         cfg = self.cfg

@@ -1,0 +1,276 @@
+"""The writer side of `bavo-collect`: LeRobot writer sessions (one per commit), fed from a background thread.
+
+A commit is one LeRobot writer session (`WriterSession`): snapshot the dataset's metadata and file list, mark
+the commit pending in the collection record, `LeRobotDataset.resume`, append staged episodes in seed order
+(`add`), then `finalize`, check the videos and record the episodes (`close`). Anything that interrupts it
+before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
+after the record says they are committed, so a rolled-back commit is redone from them by the next run.
+
+Why a background thread (`BackgroundWriter`, issue 11): the writer is about 40 % of collection CPU (LeRobot's
+AV1 stream, parquet, statistics). When the main loop wrote each batch of `--commit-every` episodes itself,
+nothing new was handed to the workers during a commit, so they ran dry, and the last batch was written
+after every worker had finished: on an idle 2-core machine a 30-episode run left the CPUs ~9 % idle, most
+of it in that tail. The thread appends each kept episode as soon as it is resolved (seed order), into a
+session that it opens at the batch's first episode and closes at the batch's last, so the sessions hold
+exactly the same episodes as before (the same files, the same record) while the main loop keeps the
+workers busy. The main loop stops handing out attempts while more than `max_backlog` resolved episodes
+wait for the writer, which bounds the staging folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import threading
+import time
+
+from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.datasets.collection_record import PendingCommit
+from lerobot_bavo.datasets.lerobot_private import (
+    abandon_writer,
+    deferred_video_frame_stats,
+    exact_fast_episode_stats,
+    skip_noop_image_embedding,
+)
+from lerobot_bavo.datasets.staging import load_staged
+
+logger = logging.getLogger("bavo-collect")
+
+# what a worker reports about an episode's cost (`staging.stage_episode`), kept in the commit's timings
+WORKER_COST_KEYS = ("seed", "length", "episode_s", "teacher_s", "stage_s", "cpu_s")
+ENCODER_QUEUE_SLACK = 16  # frames beyond the longest episode LeRobot's streaming encoder queue can hold
+
+
+class WriterAborted(BaseException):
+    """The run was interrupted (Ctrl+C, an error in the main loop) while a writer session was open."""
+
+
+class WriterSession:
+    """One commit: a LeRobot writer session appending staged episodes to the dataset of `collector`.
+
+    Args:
+        collector: the `collect.Collector` whose dataset, record, snapshot and staging folder are used.
+        max_frames: the longest episode this session may get (LeRobot's streaming encoder drops frames
+            once its queue is full, so the queue must hold a whole episode).
+        timings: the run's timings; appends `episode_write_s` per episode (seconds), `session_s` per session
+            (open + finalize seconds) and one `commits` entry per session (`end_s` since `run_t0`, seconds
+            spent writing, CPU seconds of this process meanwhile, and each episode's worker-side costs).
+        run_t0: `time.perf_counter()` at the start of the run.
+    """
+
+    def __init__(self, collector, max_frames: int, timings: dict | None = None, run_t0: float | None = None):
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        self.collector = collector
+        self.timings = {} if timings is None else timings
+        self.run_t0 = run_t0  # perf_counter at the run's start, for the commit's `end_s`
+        self.kept: list[dict] = []
+        self.discards: list[dict] = []
+        self._busy_s, self._cpu_s = 0.0, 0.0
+        self._overhead_s = 0.0  # session open + finalize, the per-session cost
+        self._patches = contextlib.ExitStack()
+        self.ds = None
+        t0, c0 = time.perf_counter(), time.process_time()
+        collector.snapshot.take()
+        record = collector.record
+        record.pending_commit = PendingCommit([], record.next_seed)
+        collector._save_record()
+        try:  # from here until `close` saves the record, the session is pending: any interruption rolls it back
+            cfg = collector.cfg
+            self.ds = LeRobotDataset.resume(cfg.repo_id, root=collector.root, video_backend="pyav",
+                                            streaming_encoding=cfg.use_videos,
+                                            encoder_queue_maxsize=max_frames + ENCODER_QUEUE_SLACK)
+            self.first_index = self.ds.meta.total_episodes
+            self._patches.enter_context(skip_noop_image_embedding())
+            self._patches.enter_context(exact_fast_episode_stats())
+            self._patches.enter_context(deferred_video_frame_stats())
+        except BaseException:
+            self.abort()
+            raise
+        self._account(t0, c0, overhead=True)
+
+    def _account(self, t0: float, c0: float, overhead: bool = False) -> float:
+        dt = time.perf_counter() - t0
+        self._busy_s += dt
+        self._cpu_s += time.process_time() - c0  # this process, so LeRobot's encoder threads too
+        if overhead:
+            self._overhead_s += dt
+        return dt
+
+    def add_discard(self, summary: dict) -> None:
+        """An unsuccessful attempt resolved before this session's last episode: recorded when it closes."""
+        self.discards.append(summary)
+
+    def add(self, summary: dict, abort: threading.Event | None = None) -> None:
+        """Append the staged episode of `summary` (add_frame per frame, save_episode); `abort` set stops it
+        between frames with `WriterAborted` (the caller then calls `abort()`)."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        collector, ds = self.collector, self.ds
+        seed = int(summary["seed"])
+        # the record names the seeds this pending session holds (and the next seed if it closed now)
+        collector.record.pending_commit = PendingCommit([b["seed"] for b in self.kept] + [seed], seed + 1)
+        collector._save_record()
+        # a dataset begun before a newer optional annotation existed keeps its own features
+        cols = {k: v for k, v in load_staged(collector.staging, seed).items()
+                if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
+        n = cols[S.ACTION].shape[0]
+        if n != summary["length"]:
+            from lerobot_bavo.datasets.collect import CollectionError
+
+            raise CollectionError(f"staged episode seed {seed} has {n} frames, its marker says {summary['length']}")
+        description = collector.settings["task_description"]
+        for t in range(n):
+            if abort is not None and abort.is_set():
+                raise WriterAborted()
+            frame = {k: v[t] for k, v in cols.items()}
+            frame["task"] = description
+            ds.add_frame(frame)
+        ds.save_episode()
+        self.kept.append(summary)
+        self.timings.setdefault("episode_write_s", []).append(round(self._account(t0, c0), 3))
+
+    def close(self, next_seed: int | None = None) -> int:
+        """Finalize, check the videos, record the episodes (the commit point), delete their staged files.
+        `next_seed` defaults to the seed after the last episode. Returns the first new episode index."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        collector, record = self.collector, self.collector.record
+        if next_seed is None:
+            next_seed = int(self.kept[-1]["seed"]) + 1 if self.kept else record.next_seed
+        try:
+            self.ds.finalize()
+            self._patches.close()
+            collector._verify_videos(self.first_index, self.kept)
+            for i, b in enumerate(self.kept):
+                record.episodes.append({"episode_index": self.first_index + i, "seed": b["seed"],
+                                        "length": b["length"], "recoveries": b.get("recoveries")})
+            record.discarded.extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
+                                    for d in self.discards)
+            record.next_seed = next_seed
+            record.pending_commit = None
+            record.complete = False
+            collector._save_record()
+        except BaseException:
+            logger.warning("interrupted during a commit: rolling it back")
+            self.abort()
+            raise
+        for s in self.kept + self.discards:
+            collector._drop_staged(s["seed"])
+        collector.snapshot.discard()
+        self._account(t0, c0, overhead=True)
+        self.timings.setdefault("session_s", []).append(round(self._overhead_s, 3))
+        self.timings.setdefault("commits", []).append({
+            "end_s": None if self.run_t0 is None else round(time.perf_counter() - self.run_t0, 3),
+            "busy_s": round(self._busy_s, 3), "cpu_s": round(self._cpu_s, 3),
+            "episodes": [{k: b[k] for k in WORKER_COST_KEYS if k in b} for b in self.kept]})
+        logger.info("committed %d episodes (seeds %s) in %.1f s of writing", len(self.kept),
+                    [b["seed"] for b in self.kept], self._busy_s)
+        return self.first_index
+
+    def abort(self) -> None:
+        """Drop the session and roll the dataset back to its snapshot (nothing of it stays)."""
+        if self.ds is not None:
+            abandon_writer(self.ds)
+        self._patches.close()
+        self.collector._rollback()
+
+
+class BackgroundWriter:
+    """Appends the resolved attempts of a run to the dataset in a thread, `commit_every` kept episodes per
+    session, the last session ending at the `needed`-th kept episode.
+
+    The main loop calls `put` with every resolved attempt in seed order, `raise_if_failed` now and then,
+    `finish` at the end and `abort` when it is interrupted (the open session is rolled back, as a commit
+    interrupted in the main loop used to be).
+    """
+
+    def __init__(self, collector, needed: int, commit_every: int, max_frames: int, timings: dict,
+                 run_t0: float | None = None):
+        self.collector = collector
+        self.needed, self.commit_every, self.max_frames = needed, commit_every, max_frames
+        self.timings, self.run_t0 = timings, run_t0
+        self.handed = 0  # kept episodes put so far
+        self.written = 0  # kept episodes saved into a session (committed or in the open one)
+        self.error: BaseException | None = None
+        self._queue: queue.Queue = queue.Queue()
+        self._abort = threading.Event()
+        self._progress = threading.Condition()
+        self._thread = threading.Thread(target=self._run, name="bavo-writer", daemon=True)
+        self._thread.start()
+
+    @property
+    def backlog(self) -> int:
+        """Kept episodes handed over and not yet saved."""
+        return self.handed - self.written
+
+    def put(self, summary: dict) -> None:
+        self.raise_if_failed()
+        if summary["kept"]:
+            self.handed += 1
+        self._queue.put(summary)
+
+    def raise_if_failed(self) -> None:
+        if self.error is not None:
+            raise self.error
+
+    def wait_for_progress(self, timeout: float = 1.0) -> None:
+        """Block until the writer saves an episode or fails (or `timeout` seconds pass)."""
+        with self._progress:
+            if self.error is None and self.backlog > 0:
+                self._progress.wait(timeout)
+        self.raise_if_failed()
+
+    def finish(self) -> None:
+        """Wait until every kept episode put is committed; re-raise the writer's error, if any."""
+        self._queue.put(None)
+        while self._thread.is_alive():
+            self._thread.join(timeout=0.5)
+        self.raise_if_failed()
+
+    def abort(self) -> None:
+        """Stop at the next frame, roll back the open session, and wait for the thread."""
+        self._abort.set()
+        self._queue.put(None)
+        while self._thread.is_alive():
+            self._thread.join(timeout=0.5)
+
+    def _run(self) -> None:
+        session: WriterSession | None = None
+        held: list[dict] = []  # attempts discarded while no session was open: they go into the next one
+        try:
+            while self.written < self.needed:
+                item = self._queue.get()
+                if item is None or self._abort.is_set():
+                    break
+                if not item["kept"]:
+                    (session.add_discard if session is not None else held.append)(item)
+                    continue
+                if session is None:
+                    session = WriterSession(self.collector, self.max_frames, self.timings, self.run_t0)
+                    for d in held:
+                        session.add_discard(d)
+                    held = []
+                session.add(item, self._abort)
+                self._saved()
+                if len(session.kept) >= self.commit_every or self.written >= self.needed:
+                    done, session = session, None
+                    done.close()
+            if session is not None:  # stopped with a session open: it never reached its commit point
+                done, session = session, None
+                done.abort()
+        except BaseException as e:  # noqa: BLE001 - handed to the main thread (`raise_if_failed`)
+            if session is not None:
+                logger.warning("interrupted during a commit: rolling it back")
+                try:
+                    session.abort()
+                except BaseException as rollback_error:  # noqa: BLE001
+                    e.__context__ = rollback_error
+            self.error = e
+        finally:
+            with self._progress:
+                self._progress.notify_all()
+
+    def _saved(self) -> None:
+        with self._progress:
+            self.written += 1
+            self._progress.notify_all()
