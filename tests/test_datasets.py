@@ -584,3 +584,20 @@ def test_ctrl_c_with_a_writer_session_open_rolls_it_back(tmp_path, monkeypatch):
     assert summary["episodes"] == 4
     assert [e["seed"] for e in read_sidecar(root)["episodes"]] == [0, 1, 2, 3]
     check_files(root)
+
+
+def test_writer_thread_and_main_loop_writing_give_the_same_dataset(tmp_path):
+    """`writer_thread=False` (each episode written in the main loop, for benchmarks and profiling) and the
+    default background writer commit the same sessions and the same rows."""
+    import pyarrow.parquet as pq
+
+    tables, sessions = {}, {}
+    for threaded in (True, False):
+        root = tmp_path / f"threaded_{threaded}"
+        collect(_config(root, episodes=3, commit_every=2, writer_thread=threaded))
+        rec = read_sidecar(root)
+        sessions[threaded] = [[e["seed"] for e in c["episodes"]] for c in rec["runs"][-1]["timings"]["commits"]]
+        tables[threaded] = pq.read_table(sorted((root / "data").rglob("*.parquet"))).to_pydict()
+        check_files(root)
+    assert sessions[True] == sessions[False] == [[0, 1], [2]]
+    assert tables[True] == tables[False]

@@ -103,6 +103,9 @@ class CollectConfig:
         max_discard_ratio: abort when more than this many discards per wanted episode (plus 10) occur.
         progress: show a progress bar.
         command: the command line, recorded in the collection record and the dataset card.
+        writer_thread: write from a background thread while the workers go on (default). False writes each
+            episode in the main loop, so no new attempt starts meanwhile (the behaviour before issue 11's
+            writer thread; for side-by-side benchmarks and single-threaded profiling). Same dataset either way.
     """
 
     task: str
@@ -125,6 +128,7 @@ class CollectConfig:
     max_discard_ratio: float = 2.0
     progress: bool = True
     command: str | None = None
+    writer_thread: bool = True
 
     def __post_init__(self):
         if self.episodes < 1:
@@ -421,7 +425,8 @@ class Collector:
             from lerobot_bavo.envs.tasks import TASKS
 
             max_frames = cfg.episode_length or TASKS.lookup(cfg.task).max_episode_steps
-            writer = BackgroundWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start)
+            writer = BackgroundWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start,
+                                      threaded=cfg.writer_thread)
         # No more attempts while this many resolved episodes wait for the writer (bounds the staging folder).
         max_backlog = cfg.commit_every + window
         try:

@@ -181,11 +181,12 @@ class BackgroundWriter:
 
     The main loop calls `put` with every resolved attempt in seed order, `raise_if_failed` now and then,
     `finish` at the end and `abort` when it is interrupted (the open session is rolled back, as a commit
-    interrupted in the main loop used to be).
+    interrupted in the main loop used to be). With `threaded=False` there is no thread: `put` writes the
+    episode in the caller's thread before it returns (the same sessions and files; `CollectConfig.writer_thread`).
     """
 
     def __init__(self, collector, needed: int, commit_every: int, max_frames: int, timings: dict,
-                 run_t0: float | None = None):
+                 run_t0: float | None = None, threaded: bool = True):
         self.collector = collector
         self.needed, self.commit_every, self.max_frames = needed, commit_every, max_frames
         self.timings, self.run_t0 = timings, run_t0
@@ -195,8 +196,12 @@ class BackgroundWriter:
         self._queue: queue.Queue = queue.Queue()
         self._abort = threading.Event()
         self._progress = threading.Condition()
-        self._thread = threading.Thread(target=self._run, name="bavo-writer", daemon=True)
-        self._thread.start()
+        self._session: WriterSession | None = None
+        self._held: list[dict] = []  # attempts discarded while no session was open: they go into the next one
+        self._thread = None
+        if threaded:
+            self._thread = threading.Thread(target=self._run, name="bavo-writer", daemon=True)
+            self._thread.start()
 
     @property
     def backlog(self) -> int:
@@ -207,7 +212,14 @@ class BackgroundWriter:
         self.raise_if_failed()
         if summary["kept"]:
             self.handed += 1
-        self._queue.put(summary)
+        if self._thread is not None:
+            self._queue.put(summary)
+            return
+        try:  # no thread: write it now, in the caller's thread
+            self._handle(summary)
+        except BaseException:
+            self._abort_session()
+            raise
 
     def raise_if_failed(self) -> None:
         if self.error is not None:
@@ -222,6 +234,10 @@ class BackgroundWriter:
 
     def finish(self) -> None:
         """Wait until every kept episode put is committed; re-raise the writer's error, if any."""
+        if self._thread is None:
+            if self._session is not None:  # fewer kept episodes than needed were put: not a commit point
+                self._abort_session()
+            return
         self._queue.put(None)
         while self._thread.is_alive():
             self._thread.join(timeout=0.5)
@@ -230,45 +246,55 @@ class BackgroundWriter:
     def abort(self) -> None:
         """Stop at the next frame, roll back the open session, and wait for the thread."""
         self._abort.set()
+        if self._thread is None:
+            self._abort_session()
+            return
         self._queue.put(None)
         while self._thread.is_alive():
             self._thread.join(timeout=0.5)
 
     def _run(self) -> None:
-        session: WriterSession | None = None
-        held: list[dict] = []  # attempts discarded while no session was open: they go into the next one
         try:
             while self.written < self.needed:
                 item = self._queue.get()
                 if item is None or self._abort.is_set():
                     break
-                if not item["kept"]:
-                    (session.add_discard if session is not None else held.append)(item)
-                    continue
-                if session is None:
-                    session = WriterSession(self.collector, self.max_frames, self.timings, self.run_t0)
-                    for d in held:
-                        session.add_discard(d)
-                    held = []
-                session.add(item, self._abort)
-                self._saved()
-                if len(session.kept) >= self.commit_every or self.written >= self.needed:
-                    done, session = session, None
-                    done.close()
-            if session is not None:  # stopped with a session open: it never reached its commit point
-                done, session = session, None
-                done.abort()
+                self._handle(item)
+            if self._session is not None:  # stopped with a session open: it never reached its commit point
+                self._abort_session()
         except BaseException as e:  # noqa: BLE001 - handed to the main thread (`raise_if_failed`)
-            if session is not None:
-                logger.warning("interrupted during a commit: rolling it back")
-                try:
-                    session.abort()
-                except BaseException as rollback_error:  # noqa: BLE001
-                    e.__context__ = rollback_error
+            try:
+                self._abort_session()
+            except BaseException as rollback_error:  # noqa: BLE001
+                e.__context__ = rollback_error
             self.error = e
         finally:
             with self._progress:
                 self._progress.notify_all()
+
+    def _handle(self, item: dict) -> None:
+        """One resolved attempt, in seed order: a discard joins the open (or next) session; a kept episode is
+        appended, opening a session first if none is open, and closes it at its `commit_every`-th episode or
+        at the `needed`-th of the run."""
+        if not item["kept"]:
+            (self._session.add_discard if self._session is not None else self._held.append)(item)
+            return
+        if self._session is None:
+            self._session = WriterSession(self.collector, self.max_frames, self.timings, self.run_t0)
+            for d in self._held:
+                self._session.add_discard(d)
+            self._held = []
+        self._session.add(item, self._abort)
+        self._saved()
+        if len(self._session.kept) >= self.commit_every or self.written >= self.needed:
+            done, self._session = self._session, None
+            done.close()  # rolls itself back if it fails
+
+    def _abort_session(self) -> None:
+        if self._session is not None:
+            done, self._session = self._session, None
+            logger.warning("interrupted during a commit: rolling it back")
+            done.abort()
 
     def _saved(self) -> None:
         with self._progress:
