@@ -31,12 +31,7 @@ No dataset is written:
 
     python benchmarks/collect_throughput.py --compare-paths 4 [--compare-steps 150]
 
-The writer thread against writing in the main loop (`--compare-writer N`): whole N-episode collections
-(`collect(CollectConfig(..., writer_thread=True / False))`, each in its own process, fresh folders),
-alternating, `--repeats` times each; prints the wall time and the CPU time of each run (the process and
-its workers) and the ratios of the means:
-
-    python benchmarks/collect_throughput.py --compare-writer 30 [--repeats 2]
+Whole collections of this checkout against another commit, side by side: `benchmarks/collect_versions.py`.
 """
 
 from __future__ import annotations
@@ -45,7 +40,6 @@ import argparse
 import json
 import os
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -87,16 +81,9 @@ def main() -> None:
     ap.add_argument("--compare-paths", type=int, default=0, metavar="N",
                     help="instead of a collection: old vs new worker path on N seeds each, in one process")
     ap.add_argument("--compare-steps", type=int, default=None, help="episode length limit for --compare-paths")
-    ap.add_argument("--compare-writer", type=int, default=0, metavar="N",
-                    help="instead: N-episode collections with the writer thread and with writing in the main loop, "
-                         "alternating")
-    ap.add_argument("--repeats", type=int, default=2, help="runs of each mode for --compare-writer")
     args = ap.parse_args()
     if args.compare_paths:
         compare_paths(args.task, args.condition, args.compare_paths, args.compare_steps)
-        return
-    if args.compare_writer:
-        compare_writer(args.task, args.condition, args.compare_writer, args.repeats, args.workers)
         return
 
     import datasets
@@ -254,44 +241,6 @@ def compare_paths(task: str, condition: str, episodes: int, steps: int | None) -
                       "ratio": round(ratio, 3), "identical": bool(identical), "projected_100_s": round(projected)}))
     for rec in paths.values():
         rec.close()
-
-
-def compare_writer(task: str, condition: str, episodes: int, repeats: int, workers: int) -> None:
-    """Whole collections with and without the writer thread, alternating; wall and CPU time of each."""
-    import resource
-    import subprocess
-
-    code = ("import sys\n"
-            "from lerobot_bavo.datasets.collect import CollectConfig, collect\n"
-            f"collect(CollectConfig(task={task!r}, condition={condition!r}, episodes={episodes}, repo_id='bench/writer', "
-            f"root=sys.argv[1], workers={workers}, progress=False, writer_thread=sys.argv[2] == 'thread'))\n")
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", HF_HUB_OFFLINE="1")
-    tmp = Path(tempfile.mkdtemp(prefix="bavo_writer_"))
-    runs: dict[str, list[tuple[float, float]]] = {"thread": [], "main loop": []}
-    print(f"{episodes} x {task} / {condition}, {workers} workers; load average before {os.getloadavg()[0]:.1f}")
-    try:
-        for r in range(repeats):
-            for mode in (("thread", "main loop") if r % 2 == 0 else ("main loop", "thread")):
-                root = tmp / f"{mode.replace(' ', '_')}_{r}"
-                before = resource.getrusage(resource.RUSAGE_CHILDREN)
-                t0 = time.perf_counter()
-                subprocess.run([sys.executable, "-c", code, str(root), mode], check=True, env=env,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                wall = time.perf_counter() - t0
-                after = resource.getrusage(resource.RUSAGE_CHILDREN)
-                cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
-                runs[mode].append((wall, cpu))
-                print(f"  {mode:<9} run {r}: wall {wall:6.1f} s, CPU {cpu:6.1f} s (process + workers)", flush=True)
-                shutil.rmtree(root, ignore_errors=True)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    mean = {m: (sum(w for w, _ in v) / len(v), sum(c for _, c in v) / len(v)) for m, v in runs.items()}
-    print(f"mean wall: thread {mean['thread'][0]:.1f} s, main loop {mean['main loop'][0]:.1f} s -> "
-          f"thread / main loop {mean['thread'][0] / mean['main loop'][0]:.3f}")
-    print(f"mean CPU:  thread {mean['thread'][1]:.1f} s, main loop {mean['main loop'][1]:.1f} s -> "
-          f"thread / main loop {mean['thread'][1] / mean['main loop'][1]:.3f}")
-    print(json.dumps({"episodes": episodes, "runs": runs, "wall_ratio": round(mean["thread"][0] / mean["main loop"][0], 3),
-                      "cpu_ratio": round(mean["thread"][1] / mean["main loop"][1], 3)}))
 
 
 def per_episode_costs(root: Path, commits: list[dict], t0: float, plot: Path | None) -> None:

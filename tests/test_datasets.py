@@ -503,41 +503,34 @@ def _counting_run_job(real_run_job, calls: list, interrupt_at: int | None = None
     return run
 
 
-def test_workers_keep_recording_while_the_writer_writes(tmp_path, monkeypatch):
-    """While the writer thread is busy with an episode, the main loop keeps handing out attempts, up to the
-    backlog bound (--commit-every + attempts in flight), and the sessions still hold exactly --commit-every
-    episodes each, in seed order."""
-    import threading
-
+def test_episodes_are_written_as_they_resolve_into_sessions_of_commit_every(tmp_path, monkeypatch):
+    """Each kept episode is written as soon as it is resolved, before the next attempt (the attempts in flight
+    keep the workers busy meanwhile), and the sessions still hold exactly --commit-every episodes each, in
+    seed order."""
     import lerobot_bavo.datasets.collect as collect_mod
     from lerobot_bavo.datasets.writer import WriterSession
 
-    calls: list[int] = []
-    monkeypatch.setattr(collect_mod, "run_job", _counting_run_job(collect_mod.run_job, calls))
-    real_add = WriterSession.add
-    seen: dict = {}
-    released = threading.Event()
+    events: list[tuple[str, int]] = []
+    real_run_job, real_add = collect_mod.run_job, WriterSession.add
 
-    def slow_add(self, summary, abort=None):
-        if not released.is_set():  # the first episode: hold the writer until the main loop has run ahead
-            deadline = time.monotonic() + 60
-            while len(calls) < 3 and time.monotonic() < deadline:
-                time.sleep(0.05)
-            time.sleep(0.5)  # would the loop run past its bound?
-            seen["attempts_while_writing"] = len(calls)
-            released.set()
-        return real_add(self, summary, abort)
+    def run_job(job):
+        events.append(("attempt", job["seed"]))
+        return real_run_job(job)
 
-    monkeypatch.setattr(WriterSession, "add", slow_add)
-    root = tmp_path / "overlap"
-    summary = collect(_config(root, episodes=4, commit_every=2))
-    # in-process pool: 1 attempt in flight, so the bound is 2 + 1 resolved episodes waiting for the writer
-    assert seen["attempts_while_writing"] == 3
-    assert summary["episodes"] == 4
+    def add(self, summary):
+        events.append(("write", summary["seed"]))
+        return real_add(self, summary)
+
+    monkeypatch.setattr(collect_mod, "run_job", run_job)
+    monkeypatch.setattr(WriterSession, "add", add)
+    root = tmp_path / "streamed"
+    summary = collect(_config(root, episodes=5, commit_every=2))  # in-process pool: one attempt in flight
+    assert summary["episodes"] == 5
+    assert events == [(kind, seed) for seed in range(5) for kind in ("attempt", "write")]
     rec = read_sidecar(root)
     commits = rec["runs"][-1]["timings"]["commits"]
-    assert [[e["seed"] for e in c["episodes"]] for c in commits] == [[0, 1], [2, 3]]
-    assert [e["seed"] for e in rec["episodes"]] == [0, 1, 2, 3]
+    assert [[e["seed"] for e in c["episodes"]] for c in commits] == [[0, 1], [2, 3], [4]]
+    assert [e["seed"] for e in rec["episodes"]] == [0, 1, 2, 3, 4]
     assert rec["pending_commit"] is None
     check_files(root)
 
@@ -553,8 +546,8 @@ def test_ctrl_c_with_a_writer_session_open_rolls_it_back(tmp_path, monkeypatch):
     added: list[int] = []
     real_run_job, real_add = collect_mod.run_job, WriterSession.add
 
-    def counting_add(self, summary, abort=None):
-        real_add(self, summary, abort)
+    def counting_add(self, summary):
+        real_add(self, summary)
         added.append(summary["seed"])
 
     def session_holds_an_episode():  # interrupt only once the open session has an episode saved in it
@@ -585,19 +578,3 @@ def test_ctrl_c_with_a_writer_session_open_rolls_it_back(tmp_path, monkeypatch):
     assert [e["seed"] for e in read_sidecar(root)["episodes"]] == [0, 1, 2, 3]
     check_files(root)
 
-
-def test_writer_thread_and_main_loop_writing_give_the_same_dataset(tmp_path):
-    """`writer_thread=False` (each episode written in the main loop, for benchmarks and profiling) and the
-    default background writer commit the same sessions and the same rows."""
-    import pyarrow.parquet as pq
-
-    tables, sessions = {}, {}
-    for threaded in (True, False):
-        root = tmp_path / f"threaded_{threaded}"
-        collect(_config(root, episodes=3, commit_every=2, writer_thread=threaded))
-        rec = read_sidecar(root)
-        sessions[threaded] = [[e["seed"] for e in c["episodes"]] for c in rec["runs"][-1]["timings"]["commits"]]
-        tables[threaded] = pq.read_table(sorted((root / "data").rglob("*.parquet"))).to_pydict()
-        check_files(root)
-    assert sessions[True] == sessions[False] == [[0, 1], [2]]
-    assert tables[True] == tables[False]

@@ -14,12 +14,11 @@ How it works:
   CPUs, or the cluster at `--ray-address`). A Ray worker may be on another machine, so it returns the
   staged files' bytes and this process writes them into the same staging folder; everything after
   (the writer, resume, the record) is the same. A worker lost mid-episode is retried by Ray.
-- The main process is the only writer into the LeRobotDataset. A writer thread (`writer.BackgroundWriter`)
-  appends each kept episode as soon as it and every lower seed are resolved, so the workers keep recording
-  while it writes; every `--commit-every` episodes form one LeRobot writer session (`LeRobotDataset.resume`,
-  the episodes in seed order, `finalize()`), and only then are they recorded in `meta/bavo_collection.json`
-  (the collection record). No new attempts start while more than `--commit-every` plus the attempts
-  allowed in flight (2 x `--workers` locally) resolved episodes wait for the writer (bounds the staging folder).
+- The main process is the only writer into the LeRobotDataset. It appends each kept episode as soon as
+  it and every lower seed are resolved (`writer.StreamingWriter`; the attempts in flight keep the workers
+  busy meanwhile); every `--commit-every` episodes form one LeRobot writer session (`LeRobotDataset.resume`,
+  the episodes in seed order, `finalize()`), and only then are they recorded in
+  `meta/bavo_collection.json` (the collection record).
 - Resume: re-running the same command continues where a killed run stopped. LeRobot keeps its
   parquet writers open until `finalize()`, so a kill inside a commit leaves unreadable files. Each
   commit therefore first snapshots `meta/info.json`, `meta/stats.json`, `meta/tasks.parquet` and
@@ -32,7 +31,7 @@ How it works:
 
 Where each job lives: this module has the CLI, its config and the run (`Collector`, `SeedScheduler`);
 `staging.py` records and stages one episode (the worker side); `writer.py` is the writer side (a commit's
-writer session, the background writer thread); `collection_record.py` is the record; `transaction.py`
+writer session, fed episode by episode); `collection_record.py` is the record; `transaction.py`
 snapshots and rolls back a writer session; `lerobot_private.py` holds every use of LeRobot's private
 internals; `runtime/pool.py` is the worker pool `bavo-eval` uses too.
 """
@@ -68,7 +67,7 @@ from lerobot_bavo.datasets.transaction import (
     WriterSessionSnapshot,
     remove_stray_dirs,
 )
-from lerobot_bavo.datasets.writer import BackgroundWriter, WriterSession
+from lerobot_bavo.datasets.writer import StreamingWriter, WriterSession
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
 from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments, executor_problem
@@ -103,9 +102,6 @@ class CollectConfig:
         max_discard_ratio: abort when more than this many discards per wanted episode (plus 10) occur.
         progress: show a progress bar.
         command: the command line, recorded in the collection record and the dataset card.
-        writer_thread: write from a background thread while the workers go on (default). False writes each
-            episode in the main loop, so no new attempt starts meanwhile (the behaviour before issue 11's
-            writer thread; for side-by-side benchmarks and single-threaded profiling). Same dataset either way.
     """
 
     task: str
@@ -128,7 +124,6 @@ class CollectConfig:
     max_discard_ratio: float = 2.0
     progress: bool = True
     command: str | None = None
-    writer_thread: bool = True
 
     def __post_init__(self):
         if self.episodes < 1:
@@ -345,8 +340,8 @@ class Collector:
     def _commit(self, batch: list[dict], discards: list[dict], next_seed: int, timings: dict | None = None) -> None:
         """Append `batch` (summaries of staged kept episodes, seed order) to the dataset in one writer session
         (`writer.WriterSession`), here and now; an interruption (error, Ctrl+C) before the record is saved
-        rolls the session back. `bavo-teleop` commits each human episode this way; `bavo-collect` streams its
-        episodes into sessions from a background thread (`writer.BackgroundWriter`)."""
+        rolls the session back. `bavo-teleop` commits each human episode this way; `bavo-collect` writes its
+        episodes into sessions as they are resolved (`writer.StreamingWriter`)."""
         session = WriterSession(self, max(b["length"] for b in batch), timings)
         try:
             for d in discards:
@@ -413,7 +408,7 @@ class Collector:
                      "reused_staged": len(sched.results)}
         timings: dict[str, list] = {}
         needed = requested - committed
-        handed = 0  # kept episodes handed to the writer this run
+        handed = 0  # kept episodes written this run (committed, or in the writer's open session)
         discarded = len(self.record.discarded)
         max_discards = int(cfg.max_discard_ratio * requested) + 10
         bar = _progress(total=requested, initial=committed, enabled=cfg.progress)
@@ -425,15 +420,11 @@ class Collector:
             from lerobot_bavo.envs.tasks import TASKS
 
             max_frames = cfg.episode_length or TASKS.lookup(cfg.task).max_episode_steps
-            writer = BackgroundWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start,
-                                      threaded=cfg.writer_thread)
-        # No more attempts while this many resolved episodes wait for the writer (bounds the staging folder).
-        max_backlog = cfg.commit_every + window
+            writer = StreamingWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start)
         try:
             while handed < needed:
-                writer.raise_if_failed()
                 for summary in sched.resolved():  # finished attempts, in seed order
-                    writer.put(summary)
+                    writer.put(summary)  # a kept episode is written now; its session commits at its last one
                     if summary["kept"]:
                         handed += 1
                         bar.update(1)
@@ -444,14 +435,10 @@ class Collector:
                         break
                 if handed >= needed:
                     break
-                if writer.backlog < max_backlog:
-                    for seed in sched.seeds_to_attempt(wanted=needed - handed, window=window):
-                        sched.submit(pool, job_fn, self._job(seed))
-                        run_stats["attempts"] += 1
-                if sched.in_flight or sched.next_seed in sched.results:
-                    sched.wait()
-                else:  # the writer's backlog is full and nothing runs: wait for it
-                    writer.wait_for_progress()
+                for seed in sched.seeds_to_attempt(wanted=needed - handed, window=window):
+                    sched.submit(pool, job_fn, self._job(seed))
+                    run_stats["attempts"] += 1
+                sched.wait()
             if writer is not None:
                 writer.finish()
         except BaseException:

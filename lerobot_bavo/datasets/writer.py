@@ -1,4 +1,4 @@
-"""The writer side of `bavo-collect`: LeRobot writer sessions (one per commit), fed from a background thread.
+"""The writer side of `bavo-collect`: LeRobot writer sessions (one per commit), fed episode by episode.
 
 A commit is one LeRobot writer session (`WriterSession`): snapshot the dataset's metadata and file list, mark
 the commit pending in the collection record, `LeRobotDataset.resume`, append staged episodes in seed order
@@ -6,23 +6,22 @@ the commit pending in the collection record, `LeRobotDataset.resume`, append sta
 before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
 after the record says they are committed, so a rolled-back commit is redone from them by the next run.
 
-Why a background thread (`BackgroundWriter`, issue 11): the writer is about 40 % of collection CPU (LeRobot's
-AV1 stream, parquet, statistics). When the main loop wrote each batch of `--commit-every` episodes itself,
-nothing new was handed to the workers during a commit, so they ran dry, and the last batch was written
-after every worker had finished: on an idle 2-core machine a 30-episode run left the CPUs ~9 % idle, most
-of it in that tail. The thread appends each kept episode as soon as it is resolved (seed order), into a
-session that it opens at the batch's first episode and closes at the batch's last, so the sessions hold
-exactly the same episodes as before (the same files, the same record) while the main loop keeps the
-workers busy. The main loop stops handing out attempts while more than `max_backlog` resolved episodes
-wait for the writer, which bounds the staging folder.
+Why episode by episode (`StreamingWriter`, issue 11): the writer is about 40 % of collection CPU (LeRobot's
+AV1 stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at once
+(~20 s for 10), the 2 x `--workers` attempts in flight ran out during the commit, and the last batch was
+written after every worker had finished: a CPU trace of a 30-episode run on an idle 2-core machine showed the
+cores ~9 % idle. Now each kept episode is written as soon as it and every lower seed are resolved (~2 s, less
+than the attempts in flight keep the workers busy for), into a session opened at the batch's first episode
+and closed at its last, so the sessions hold exactly the same episodes as before (the same files, the same
+record); the trace shows ~2-3 % idle (start-up and the last episode). Writing from a background thread
+instead was tried: whole 30-episode runs side by side gave the same wall time (thread / main loop 1.009) and
+CPU (1.005), so the simpler synchronous writer was kept.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import queue
-import threading
 import time
 
 from lerobot_bavo.datasets import schema as S
@@ -40,10 +39,6 @@ logger = logging.getLogger("bavo-collect")
 # what a worker reports about an episode's cost (`staging.stage_episode`), kept in the commit's timings
 WORKER_COST_KEYS = ("seed", "length", "episode_s", "teacher_s", "stage_s", "cpu_s")
 ENCODER_QUEUE_SLACK = 16  # frames beyond the longest episode LeRobot's streaming encoder queue can hold
-
-
-class WriterAborted(BaseException):
-    """The run was interrupted (Ctrl+C, an error in the main loop) while a writer session was open."""
 
 
 class WriterSession:
@@ -102,9 +97,8 @@ class WriterSession:
         """An unsuccessful attempt resolved before this session's last episode: recorded when it closes."""
         self.discards.append(summary)
 
-    def add(self, summary: dict, abort: threading.Event | None = None) -> None:
-        """Append the staged episode of `summary` (add_frame per frame, save_episode); `abort` set stops it
-        between frames with `WriterAborted` (the caller then calls `abort()`)."""
+    def add(self, summary: dict) -> None:
+        """Append the staged episode of `summary` (add_frame per frame, save_episode)."""
         t0, c0 = time.perf_counter(), time.process_time()
         collector, ds = self.collector, self.ds
         seed = int(summary["seed"])
@@ -121,8 +115,6 @@ class WriterSession:
             raise CollectionError(f"staged episode seed {seed} has {n} frames, its marker says {summary['length']}")
         description = collector.settings["task_description"]
         for t in range(n):
-            if abort is not None and abort.is_set():
-                raise WriterAborted()
             frame = {k: v[t] for k, v in cols.items()}
             frame["task"] = description
             ds.add_frame(frame)
@@ -175,128 +167,54 @@ class WriterSession:
         self.collector._rollback()
 
 
-class BackgroundWriter:
-    """Appends the resolved attempts of a run to the dataset in a thread, `commit_every` kept episodes per
-    session, the last session ending at the `needed`-th kept episode.
+class StreamingWriter:
+    """Appends a run's resolved attempts to the dataset as they come, `commit_every` kept episodes per session,
+    the last session ending at the `needed`-th kept episode.
 
-    The main loop calls `put` with every resolved attempt in seed order, `raise_if_failed` now and then,
-    `finish` at the end and `abort` when it is interrupted (the open session is rolled back, as a commit
-    interrupted in the main loop used to be). With `threaded=False` there is no thread: `put` writes the
-    episode in the caller's thread before it returns (the same sessions and files; `CollectConfig.writer_thread`).
+    The main loop calls `put` with every resolved attempt in seed order (a kept episode is written before
+    `put` returns), `finish` at the end and `abort` when it is interrupted: an open session that has not
+    reached its commit point is rolled back, and its episodes stay staged for the next run.
     """
 
     def __init__(self, collector, needed: int, commit_every: int, max_frames: int, timings: dict,
-                 run_t0: float | None = None, threaded: bool = True):
+                 run_t0: float | None = None):
         self.collector = collector
         self.needed, self.commit_every, self.max_frames = needed, commit_every, max_frames
         self.timings, self.run_t0 = timings, run_t0
-        self.handed = 0  # kept episodes put so far
         self.written = 0  # kept episodes saved into a session (committed or in the open one)
-        self.error: BaseException | None = None
-        self._queue: queue.Queue = queue.Queue()
-        self._abort = threading.Event()
-        self._progress = threading.Condition()
         self._session: WriterSession | None = None
         self._held: list[dict] = []  # attempts discarded while no session was open: they go into the next one
-        self._thread = None
-        if threaded:
-            self._thread = threading.Thread(target=self._run, name="bavo-writer", daemon=True)
-            self._thread.start()
-
-    @property
-    def backlog(self) -> int:
-        """Kept episodes handed over and not yet saved."""
-        return self.handed - self.written
 
     def put(self, summary: dict) -> None:
-        self.raise_if_failed()
-        if summary["kept"]:
-            self.handed += 1
-        if self._thread is not None:
-            self._queue.put(summary)
-            return
-        try:  # no thread: write it now, in the caller's thread
-            self._handle(summary)
-        except BaseException:
-            self._abort_session()
-            raise
-
-    def raise_if_failed(self) -> None:
-        if self.error is not None:
-            raise self.error
-
-    def wait_for_progress(self, timeout: float = 1.0) -> None:
-        """Block until the writer saves an episode or fails (or `timeout` seconds pass)."""
-        with self._progress:
-            if self.error is None and self.backlog > 0:
-                self._progress.wait(timeout)
-        self.raise_if_failed()
-
-    def finish(self) -> None:
-        """Wait until every kept episode put is committed; re-raise the writer's error, if any."""
-        if self._thread is None:
-            if self._session is not None:  # fewer kept episodes than needed were put: not a commit point
-                self._abort_session()
-            return
-        self._queue.put(None)
-        while self._thread.is_alive():
-            self._thread.join(timeout=0.5)
-        self.raise_if_failed()
-
-    def abort(self) -> None:
-        """Stop at the next frame, roll back the open session, and wait for the thread."""
-        self._abort.set()
-        if self._thread is None:
-            self._abort_session()
-            return
-        self._queue.put(None)
-        while self._thread.is_alive():
-            self._thread.join(timeout=0.5)
-
-    def _run(self) -> None:
-        try:
-            while self.written < self.needed:
-                item = self._queue.get()
-                if item is None or self._abort.is_set():
-                    break
-                self._handle(item)
-            if self._session is not None:  # stopped with a session open: it never reached its commit point
-                self._abort_session()
-        except BaseException as e:  # noqa: BLE001 - handed to the main thread (`raise_if_failed`)
-            try:
-                self._abort_session()
-            except BaseException as rollback_error:  # noqa: BLE001
-                e.__context__ = rollback_error
-            self.error = e
-        finally:
-            with self._progress:
-                self._progress.notify_all()
-
-    def _handle(self, item: dict) -> None:
         """One resolved attempt, in seed order: a discard joins the open (or next) session; a kept episode is
         appended, opening a session first if none is open, and closes it at its `commit_every`-th episode or
-        at the `needed`-th of the run."""
-        if not item["kept"]:
-            (self._session.add_discard if self._session is not None else self._held.append)(item)
-            return
-        if self._session is None:
-            self._session = WriterSession(self.collector, self.max_frames, self.timings, self.run_t0)
-            for d in self._held:
-                self._session.add_discard(d)
-            self._held = []
-        self._session.add(item, self._abort)
-        self._saved()
-        if len(self._session.kept) >= self.commit_every or self.written >= self.needed:
-            done, self._session = self._session, None
-            done.close()  # rolls itself back if it fails
+        at the `needed`-th of the run. An error rolls the open session back and propagates."""
+        try:
+            if not summary["kept"]:
+                (self._session.add_discard if self._session is not None else self._held.append)(summary)
+                return
+            if self._session is None:
+                self._session = WriterSession(self.collector, self.max_frames, self.timings, self.run_t0)
+                for d in self._held:
+                    self._session.add_discard(d)
+                self._held = []
+            self._session.add(summary)
+            self.written += 1
+            if len(self._session.kept) >= self.commit_every or self.written >= self.needed:
+                done, self._session = self._session, None
+                done.close()  # rolls itself back if it fails
+        except BaseException:
+            self.abort()
+            raise
 
-    def _abort_session(self) -> None:
+    def finish(self) -> None:
+        """The end of the run: a session still open (fewer kept episodes than needed were put) never reached
+        its commit point, so it is rolled back."""
+        self.abort()
+
+    def abort(self) -> None:
+        """Roll back the open session, if any (nothing of it stays in the dataset)."""
         if self._session is not None:
             done, self._session = self._session, None
             logger.warning("interrupted during a commit: rolling it back")
             done.abort()
-
-    def _saved(self) -> None:
-        with self._progress:
-            self.written += 1
-            self._progress.notify_all()
