@@ -8,8 +8,8 @@ How it works:
   schedule) and the expert (timing jitter). The dataset holds the first `--episodes` successful
   seeds, in seed order; unsuccessful attempts are discarded and counted.
 - Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no LeRobot or
-  PyTorch import: `BAVO_LIGHT_IMPORT=1`) record an episode, compute its teacher targets and stage it as `<root>/.bavo_staging/seed_*.npz`
-  plus a `seed_*.json` marker written last (atomic renames).
+  PyTorch import: `BAVO_LIGHT_IMPORT=1`) record an episode, compute its teacher targets and stage it as
+  `<root>/.bavo_staging/seed_*.npz` plus a `seed_*.json` marker written last (atomic renames).
 - `--executor ray`: every episode rollout is a Ray task instead (on a private local Ray with `--workers`
   CPUs, or the cluster at `--ray-address`). A Ray worker may be on another machine, so it returns the
   staged files' bytes and this process writes them into the same staging folder; everything after
@@ -408,7 +408,6 @@ class Collector:
                      "reused_staged": len(sched.results)}
         timings: dict[str, list] = {}
         needed = requested - committed
-        handed = 0  # kept episodes written this run (committed, or in the writer's open session)
         discarded = len(self.record.discarded)
         max_discards = int(cfg.max_discard_ratio * requested) + 10
         bar = _progress(total=requested, initial=committed, enabled=cfg.progress)
@@ -422,20 +421,19 @@ class Collector:
             max_frames = cfg.episode_length or TASKS.lookup(cfg.task).max_episode_steps
             writer = StreamingWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start)
         try:
-            while handed < needed:
+            while writer is not None and writer.written < needed:
                 for summary in sched.resolved():  # finished attempts, in seed order
                     writer.put(summary)  # a kept episode is written now; its session commits at its last one
                     if summary["kept"]:
-                        handed += 1
                         bar.update(1)
                     else:
                         discarded += 1
-                        self._check_discards(discarded, max_discards, committed + handed, bar)
-                    if handed >= needed:
+                        self._check_discards(discarded, max_discards, committed + writer.written, bar)
+                    if writer.written >= needed:
                         break
-                if handed >= needed:
+                if writer.written >= needed:
                     break
-                for seed in sched.seeds_to_attempt(wanted=needed - handed, window=window):
+                for seed in sched.seeds_to_attempt(wanted=needed - writer.written, window=window):
                     sched.submit(pool, job_fn, self._job(seed))
                     run_stats["attempts"] += 1
                 sched.wait()

@@ -265,7 +265,7 @@ def channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)) 
         squares = np.add.reduce(block, axis=0)
     stats = {
         "min": by_channel.min(axis=1), "max": by_channel.max(axis=1), "mean": mean,
-        "std": np.sqrt(np.true_divide(squares, np.maximum(count, 0))),
+        "std": np.sqrt(np.true_divide(squares, count)),
         "count": np.array([flat.shape[0]]),
     }
     for q, value in zip(quantiles, np.quantile(by_channel, list(quantiles), axis=1)):

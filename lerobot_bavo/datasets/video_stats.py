@@ -13,10 +13,10 @@ operations. Why the replay gives the same bits:
 
 - min / max: exact whatever the order; the per-frame values are taken in one `min` / `max` over frames.
 - A frame's mean and mean of squares: `np.mean(batch, axis=0)` of a C-contiguous (N, C) float32 batch
-  sums in float32 row after row (numpy's reduction over the outer axis adds whole rows; no pairwise
-  summation across rows), then divides by `np.intp(N)`. The last element of `np.add.accumulate` along
-  the same axis is that same left-to-right float32 sum, and the division is done by the same call.
-  Squares of uint8 values are exact in float32 (<= 65025 < 2**24).
+  sums in float32 row after row (numpy sums pairwise only along the contiguous axis; over the outer axis
+  it adds whole rows), then divides by `np.intp(N)`. The replay lays a chunk of frames side by side as
+  lanes, (N, frames x C), and reduces over axis 0: the same row-after-row float32 sum for every frame at
+  once, divided by the same call. Squares of uint8 values are exact in float32 (<= 65025 < 2**24).
 - The running mean / mean of squares, the count and the range: the original statements, per frame, on
   (C,) vectors, in frame order.
 - Histograms: a bin's count is the number of values inside its edges, so frames histogrammed with the
@@ -51,14 +51,13 @@ class DeferredFrameStats(RunningQuantileStats):
     def update(self, batch: np.ndarray) -> None:
         batch = np.asarray(batch)
         rows = batch.reshape(-1, batch.shape[-1])
-        if _deferrable(rows) and (not self._pending or rows.shape == self._pending[0].shape):
-            self._pending.append(np.array(rows, order="C", copy=True))  # the caller may reuse its buffer
+        if not _deferrable(rows):
+            self._replay()  # keep the original order of updates
+            super().update(batch)
             return
-        self._replay()
-        if _deferrable(rows):  # a uint8 frame of another size starts a new run
-            self._pending.append(np.array(rows, order="C", copy=True))
-            return
-        super().update(batch)
+        if self._pending and rows.shape != self._pending[0].shape:
+            self._replay()  # a uint8 frame of another size starts a new run
+        self._pending.append(np.array(rows, order="C", copy=True))  # the caller may reuse its buffer
 
     def get_statistics(self) -> dict[str, np.ndarray]:
         self._replay()
