@@ -187,3 +187,28 @@ def test_teacher_targets_on_a_recorded_rollout():
     assert np.abs(out["zf"] - out["z0"]).max() > 0.01
     # Deterministic.
     np.testing.assert_array_equal(teacher_targets(record)["zf"], out["zf"])
+
+
+def test_whole_episode_targets_equal_the_frame_by_frame_answers():
+    """`teacher_targets` answers a whole episode in one call (issue 11); the numbers are exactly those of
+    answering each anchor frame's two query sets on its own clip (the definition, paper App. B)."""
+    from lerobot_bavo.datasets.recording import EpisodeRecorder
+    from lerobot_bavo.features import ObservationSettings
+
+    rec = EpisodeRecorder("block_stacking", "stage", ObservationSettings(120, 160, 64), episode_length=60)
+    try:
+        record = rec.record(seed=2)
+    finally:
+        rec.close()
+    out = teacher_targets(record)
+    teacher = SimulatorTeacher(with_visibility=True)
+    T = record.length
+    for t in range(T):
+        clip = make_clip(record, t)
+        a0 = teacher.answer(clip, point_queries(record.point_pixels[t], 16, 16, 16))
+        af = teacher.answer(clip, point_queries(record.point_pixels[t], 16, 31, 31))
+        np.testing.assert_array_equal(out["z0"][t], a0[:, :3])
+        np.testing.assert_array_equal(out["zf"][t], af[:, :3])
+        np.testing.assert_array_equal(out["visible"][t], af[:, 3])
+        assert out["valid"][t] == float(clip.valid_future(31))
+    assert 0 < out["visible"].mean() < 1 and out["valid"].sum() == T - 15

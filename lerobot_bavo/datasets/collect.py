@@ -571,6 +571,9 @@ def main(argv: list[str] | None = None) -> int:
         if parent is not None and not parent.is_dir():
             parser.error(f"--root {args.root}: {parent} is not a folder")
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (LeRobot's default video codec): errors only
+    from lerobot_bavo.runtime.process import retain_freed_memory
+
+    retain_freed_memory()  # this process reads every staged episode (~110-310 MB each) back: reuse the pages
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("lerobot", "datasets", "libav", "huggingface_hub"):
         logging.getLogger(noisy).setLevel(logging.WARNING)

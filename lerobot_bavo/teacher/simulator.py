@@ -30,6 +30,7 @@ from lerobot_bavo.teacher.protocol import (
     CLIP_LENGTH,
     EpisodeClip,
     check_queries,
+    clip_frames,
     make_clip,
     point_queries,
 )
@@ -53,64 +54,74 @@ class SimulatorTeacher:
         self.feature_dim = 4 if self.with_visibility else 3
 
     def answer(self, clip: EpisodeClip, queries: np.ndarray) -> np.ndarray:
-        if not clip.has_privileged_state:
-            raise ValueError(
-                "SimulatorTeacher needs the clip's privileged simulator state (depth, body_seg, body_xpos, "
-                "body_xmat); this clip has none. Use a learned teacher for real data."
-            )
+        _require_privileged_state(clip)
         q = check_queries(queries, clip)
-        n_q = q.shape[0]
-        out = np.zeros((n_q, self.feature_dim), dtype=np.float32)
-        if n_q == 0:
+        f_src, f_tgt, f_cam = (clip.episode_frames(q[:, i]) for i in (2, 3, 4))
+        return self.answer_frames(clip, q[:, 0], q[:, 1], f_src, f_tgt, f_cam)
+
+    def answer_frames(self, episode: EpisodeClip, u, v, f_src, f_tgt, f_cam) -> np.ndarray:
+        """`answer` for queries given by *episode* frame indices (Q,) (not clip indices) and pixel coordinates
+        u, v (Q,); only `episode`'s per-episode arrays and K are used. Each row is answered independently, so
+        `teacher_targets` answers a whole episode's queries in one call with the same numbers as frame by frame.
+        """
+        _require_privileged_state(episode)
+        out = np.zeros((len(u), self.feature_dim), dtype=np.float32)
+        if len(u) == 0:
             return out
-        H, W = clip.image_size
-        u = q[:, 0].round().astype(np.int64)
-        v = q[:, 1].round().astype(np.int64)
+        H, W = episode.image_size
+        u = np.asarray(u, dtype=np.float64).round().astype(np.int64)
+        v = np.asarray(v, dtype=np.float64).round().astype(np.int64)
         ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
         if not ok.any():
             return out
         u, v = u[ok], v[ok]
-        f_src = clip.episode_frames(q[ok, 2])
-        f_tgt = clip.episode_frames(q[ok, 3])
-        f_cam = clip.episode_frames(q[ok, 4])
-        K = clip.K
+        f_src, f_tgt, f_cam = f_src[ok], f_tgt[ok], f_cam[ok]
+        K = episode.K
 
         # 1. back-project the source pixels into the base frame.
-        z = clip.episode_depth[f_src, v, u].astype(np.float64)
+        z = episode.episode_depth[f_src, v, u].astype(np.float64)
         pc = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)  # (Q, 3) in C
-        T_src = clip.episode_camera_poses[f_src]  # (Q, 4, 4)
+        T_src = episode.episode_camera_poses[f_src]  # (Q, 4, 4)
         P = np.einsum("qij,qj->qi", T_src[:, :3, :3], pc) + T_src[:, :3, 3]
 
         # 2-3. rigid motion of the body seen at the pixel, from t_src to t_tgt.
-        body = clip.episode_body_seg[f_src, v, u].astype(np.int64)
+        body = episode.episode_body_seg[f_src, v, u].astype(np.int64)
         moving = body > 0  # body 0 (world) and -1 (nothing seen) stay put
         P_tgt = P.copy()
         if moving.any():
             b = body[moving]
             fs, ft = f_src[moving], f_tgt[moving]
-            x_s, R_s = clip.episode_body_xpos[fs, b], clip.episode_body_xmat[fs, b]
-            x_t, R_t = clip.episode_body_xpos[ft, b], clip.episode_body_xmat[ft, b]
+            x_s, R_s = episode.episode_body_xpos[fs, b], episode.episode_body_xmat[fs, b]
+            x_t, R_t = episode.episode_body_xpos[ft, b], episode.episode_body_xmat[ft, b]
             local = np.einsum("qji,qj->qi", R_s, P[moving] - x_s)  # R_s^T (P - x_s)
             P_tgt[moving] = np.einsum("qij,qj->qi", R_t, local) + x_t
 
         # 4. into the camera frame of t_cam.
-        out[ok, :3] = _to_camera(clip.episode_camera_poses[f_cam], P_tgt)
+        out[ok, :3] = _to_camera(episode.episode_camera_poses[f_cam], P_tgt)
         if self.with_visibility:
-            out[ok, 3] = self._visible(clip, f_tgt, P_tgt)
+            out[ok, 3] = self._visible(episode, f_tgt, P_tgt)
         return out
 
-    def _visible(self, clip: EpisodeClip, f_tgt: np.ndarray, P: np.ndarray) -> np.ndarray:
-        H, W = clip.image_size
-        K = clip.K
-        X = _to_camera(clip.episode_camera_poses[f_tgt], P)
+    def _visible(self, episode: EpisodeClip, f_tgt: np.ndarray, P: np.ndarray) -> np.ndarray:
+        H, W = episode.image_size
+        K = episode.K
+        X = _to_camera(episode.episode_camera_poses[f_tgt], P)
         z = X[:, 2]
         in_front = z > 1e-6
         zs = np.where(in_front, z, 1.0)
         u = np.round(K[0, 0] * X[:, 0] / zs + K[0, 2]).astype(np.int64)
         v = np.round(K[1, 1] * X[:, 1] / zs + K[1, 2]).astype(np.int64)
         inside = in_front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-        d = clip.episode_depth[f_tgt, np.clip(v, 0, H - 1), np.clip(u, 0, W - 1)]
+        d = episode.episode_depth[f_tgt, np.clip(v, 0, H - 1), np.clip(u, 0, W - 1)]
         return (inside & (np.abs(z - d) < self.visibility_tol)).astype(np.float32)
+
+
+def _require_privileged_state(clip: EpisodeClip) -> None:
+    if not clip.has_privileged_state:
+        raise ValueError(
+            "SimulatorTeacher needs the clip's privileged simulator state (depth, body_seg, body_xpos, "
+            "body_xmat); this clip has none. Use a learned teacher for real data."
+        )
 
 
 def _to_camera(T_b_c: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -150,6 +161,21 @@ def teacher_targets(episode, teacher=None, n_future: int = 15, clip_length: int 
     zf = np.zeros((T, N, d), dtype=np.float32)
     visible = np.ones((T, N), dtype=np.float32)
     valid = np.zeros(T, dtype=np.float32)
+    if isinstance(teacher, SimulatorTeacher):
+        # The whole episode at once (issue 11: ~3x less CPU than 2 T calls of `answer`). Frame t's queries are
+        # answered on the clip anchored at t, so their clip indices map to these episode frames.
+        clip = make_clip(episode, 0, clip_length, anchor_index)  # only its per-episode arrays are used
+        frames = np.arange(T)
+        f_future = np.array([clip_frames(t, T, clip_length, anchor_index)[future] for t in frames])
+        src = np.repeat(frames, N)
+        a0 = teacher.answer_frames(clip, pixels[..., 0].ravel(), pixels[..., 1].ravel(), src, src, src)
+        tgt = np.repeat(f_future, N)
+        af = teacher.answer_frames(clip, pixels[..., 0].ravel(), pixels[..., 1].ravel(), src, tgt, tgt)
+        z0[:], zf[:] = a0[:, :d].reshape(T, N, d), af[:, :d].reshape(T, N, d)
+        if vis_col:
+            visible[:] = af[:, 3].reshape(T, N)
+        valid[:] = (frames + n_future <= T - 1).astype(np.float32)
+        return {"z0": z0, "zf": zf, "visible": visible, "valid": valid}
     for t in range(T):
         clip = make_clip(episode, t, clip_length, anchor_index)
         a0 = teacher.answer(clip, point_queries(pixels[t], anchor_index, anchor_index, anchor_index))
