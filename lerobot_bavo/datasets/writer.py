@@ -28,6 +28,7 @@ from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collection_record import PendingCommit
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
+    arrow_episode_tables,
     deferred_video_frame_stats,
     exact_fast_episode_stats,
     skip_noop_image_embedding,
@@ -80,6 +81,7 @@ class WriterSession:
             self._patches.enter_context(skip_noop_image_embedding())
             self._patches.enter_context(exact_fast_episode_stats())
             self._patches.enter_context(deferred_video_frame_stats())
+            self._patches.enter_context(arrow_episode_tables())
         except BaseException:
             self.abort()
             raise
