@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import json
+import os
 from types import SimpleNamespace
 
 import pytest
@@ -138,3 +139,30 @@ def test_lerobot_private_fields_exist_and_a_missing_one_is_named(tmp_path):
                              _is_finalized=False)
     with pytest.raises(LeRobotInternalsChanged, match=r"DatasetWriter\._pq_writer"):
         check_private_api(broken)
+
+
+def test_workers_reuse_freed_memory_for_large_arrays():
+    """`retain_freed_memory` (pool workers and bavo-collect): a second large array of the same size reuses the
+    first one's pages, where glibc would otherwise map and zero new ones (one page fault per 4 KiB page)."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import resource, sys, numpy as np\n"
+        "from lerobot_bavo.runtime.process import retain_freed_memory\n"
+        "ok = retain_freed_memory() if sys.argv[1] == 'retain' else True\n"
+        "faults = []\n"
+        "for _ in range(3):\n"
+        "    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+        "    a = np.empty(64 << 20, np.uint8); a.fill(1); del a\n"
+        "    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)\n"
+        "print(ok, faults[1], faults[2])\n")
+    env = {**os.environ, "BAVO_LIGHT_IMPORT": "1"}
+    out = {mode: subprocess.run([sys.executable, "-c", probe, mode], capture_output=True, text=True, check=True,
+                                env=env).stdout.split() for mode in ("retain", "default")}
+    ok, second, third = out["retain"]
+    if ok != "True":
+        pytest.skip("mallopt not available (not glibc)")
+    assert int(second) < 8 and int(third) < 8  # reused: no page of the 64 MiB is faulted in again
+    # without it, every allocation of that size maps fresh pages: at least one fault per 2 MiB (huge pages)
+    assert int(out["default"][1]) >= 32 and int(out["default"][2]) >= 32

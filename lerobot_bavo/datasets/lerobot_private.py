@@ -1,8 +1,8 @@
 """Every use of LeRobot 0.6.1's private dataset internals, in one place.
 
 Why they are needed: `bavo-collect` appends episodes through LeRobot's public writer API
-(`LeRobotDataset.create / resume`, `add_frame`, `save_episode`, `finalize`). Two things that API
-does not offer:
+(`LeRobotDataset.create / resume`, `add_frame`, `save_episode`, `finalize`). What that API does not
+offer:
 
 1. Abandoning a writer after an error. The collector rolls an interrupted commit back from its
    snapshot; LeRobot's `__del__` safety nets would otherwise flush buffered episode metadata into

@@ -8,6 +8,8 @@ the worker and would also fire when a short-lived spawning thread ends, so a pol
 starts in the pool initializer, so a spawned worker killed while it is still importing (seconds on an
 idle machine, minutes on a saturated one) exits as soon as its imports finish. Two runs on one output folder (or one dataset, reached
 through a symlink) corrupted each other; an advisory lock on the *resolved* path refuses the second.
+Pool workers (`bavo-collect`'s and `bavo-eval`'s) and `bavo-collect` itself also keep freed heap memory for reuse (`retain_freed_memory`):
+their per-episode arrays are large enough that glibc would otherwise map and zero them afresh every episode.
 """
 
 from __future__ import annotations
