@@ -194,7 +194,8 @@ def _legacy_privileged_view(recorder):
         if g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
             lut[i] = g.objid
     seg = lut[np.where((segid >= 0) & (segid < ngeom), segid, ngeom)]
-    return seg, np.flipud(r._metric_depth(r._depth)).astype(np.float32)
+    near, far = r._near, r._far
+    return seg, np.flipud(near / (1.0 - r._depth * (1.0 - near / far))).astype(np.float32)
 
 
 def compare_paths(task: str, condition: str, episodes: int, steps: int | None) -> None:
