@@ -13,7 +13,10 @@ import lerobot_bavo.envs  # noqa: E402, F401
 # They are skipped where nothing needs them: `bavo-view`, and the worker processes of `bavo-eval` /
 # `bavo-collect` on Ray (BAVO_LIGHT_IMPORT=1, set by `runtime.ray_pool.worker_env_vars`), which step envs and
 # experts; a worker that loads a checkpoint registers them then (`LeRobotPolicyAgent`, `register_lerobot_types`).
-_LIGHT_IMPORT = os.environ.get("BAVO_LIGHT_IMPORT") == "1" or os.path.basename(sys.argv[0] if sys.argv else "") == "bavo-view"
+# `bavo-collect`'s own process needs LeRobot's dataset writer but none of these types; importing it lazily (when
+# the dataset is opened) lets its worker processes start their set-up meanwhile (issue 11).
+_LIGHT_IMPORT = (os.environ.get("BAVO_LIGHT_IMPORT") == "1"
+                 or os.path.basename(sys.argv[0] if sys.argv else "") in ("bavo-view", "bavo-collect"))
 
 
 def register_lerobot_types() -> None:

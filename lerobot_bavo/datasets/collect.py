@@ -61,6 +61,7 @@ from lerobot_bavo.datasets.staging import (
     seed_of,
     ship_job,
     staged_path,
+    warm_job,
 )
 from lerobot_bavo.datasets.transaction import (
     SnapshotMissing,
@@ -396,6 +397,20 @@ class Collector:
     def _run(self) -> dict:
         cfg = self.cfg
         t_start = time.perf_counter()
+        early_pool = None
+        if cfg.executor == "local" and cfg.workers > 0:
+            # Start the workers' set-up now, beside this process's own (LeRobot import, dataset open)
+            early_pool = self._pool()
+            for _ in range(cfg.workers):
+                early_pool.submit(warm_job, self._job(seed=-1))
+        try:
+            return self._run_with(early_pool, t_start)
+        finally:
+            if early_pool is not None:
+                early_pool.shutdown(cancel=True, wait=False)
+
+    def _run_with(self, early_pool, t_start: float) -> dict:
+        cfg = self.cfg
         self._open()
         requested = cfg.episodes
         committed = len(self.record.episodes)
@@ -412,7 +427,7 @@ class Collector:
         max_discards = int(cfg.max_discard_ratio * requested) + 10
         bar = _progress(total=requested, initial=committed, enabled=cfg.progress)
         bar.set_postfix(discarded=discarded)
-        pool = self._pool() if needed > 0 else None
+        pool = (early_pool or self._pool()) if needed > 0 else None
         window = pool.max_in_flight if on_ray and pool is not None else max(1, 2 * cfg.workers)
         writer = None
         if needed > 0:

@@ -54,14 +54,26 @@ def load_staged(staging: Path, seed: int) -> dict[str, np.ndarray]:
         return {_feature_key(k): z[k] for k in z.files}
 
 
-def run_job(job: dict) -> dict:
-    """Record one seeded episode with the scripted expert and stage it (`stage_episode`); returns its summary."""
+def _recorder(job: dict):
+    """This process's recorder for `job`'s task, condition, settings and episode length (built once)."""
     from lerobot_bavo.datasets.recording import EpisodeRecorder
 
     settings = ObservationSettings(**job["settings"])
     key = (job["task"], job["condition"], settings, job["episode_length"])
-    recorder = _RECORDERS.get(key, lambda: EpisodeRecorder(job["task"], job["condition"], settings,
-                                                            job["episode_length"]))
+    return _RECORDERS.get(key, lambda: EpisodeRecorder(job["task"], job["condition"], settings,
+                                                        job["episode_length"]))
+
+
+def warm_job(job: dict) -> None:
+    """Build this worker's recorder for `job` without recording anything: `bavo-collect` sends one per worker
+    before its own start-up (importing LeRobot, opening the dataset, ~3 s of one core), so the workers' set-up
+    (imports, model, GL contexts, ~1.5 s each) runs meanwhile instead of after it."""
+    _recorder(job)
+
+
+def run_job(job: dict) -> dict:
+    """Record one seeded episode with the scripted expert and stage it (`stage_episode`); returns its summary."""
+    recorder = _recorder(job)
     cpu0 = time.process_time()
     noise = ExecutionNoise(**job["execution_noise"]) if job.get("execution_noise") else None
     record = recorder.record(int(job["seed"]), execution_noise=noise)
