@@ -9,7 +9,11 @@ How it works:
   seeds, in seed order; unsuccessful attempts are discarded and counted.
 - Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no LeRobot or
   PyTorch import: `BAVO_LIGHT_IMPORT=1`) record an episode, compute its teacher targets and stage it as
-  `<root>/.bavo_staging/seed_*.npz` plus a `seed_*.json` marker written last (atomic renames).
+  `<root>/.bavo_staging/seed_*.npz` plus a `seed_*.json` marker written last (atomic renames). The pool
+  starts first, with one warm-up job per worker (`staging.warm_job`: build the recorder), and this process
+  imports LeRobot only when it opens the dataset (the `bavo-collect` command imports `lerobot_bavo` without
+  registering LeRobot types), so both set-ups run side by side. Workers and this process keep freed memory
+  for reuse (`runtime.process.retain_freed_memory`).
 - `--executor ray`: every episode rollout is a Ray task instead (on a private local Ray with `--workers`
   CPUs, or the cluster at `--ray-address`). A Ray worker may be on another machine, so it returns the
   staged files' bytes and this process writes them into the same staging folder; everything after
