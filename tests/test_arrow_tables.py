@@ -48,7 +48,7 @@ def test_direct_table_equals_from_dict_and_writes_the_same_bytes(timestamps):
     assert _parquet_bytes(ours) == _parquet_bytes(theirs)
 
 
-@pytest.mark.parametrize("change", ["dtype", "width", "missing", "extra", "list", "string"])
+@pytest.mark.parametrize("change", ["dtype", "width", "missing", "extra", "list", "string", "empty"])
 def test_anything_else_takes_datasets_own_path(change):
     cols = _columns(10, np.random.default_rng(1))
     features = FEATURES
@@ -62,6 +62,8 @@ def test_anything_else_takes_datasets_own_path(change):
         cols["other"] = np.zeros(10)
     elif change == "list":
         cols["annotation.progress"] = list(cols["annotation.progress"])
+    elif change == "empty":
+        cols = {k: v[:0] for k, v in cols.items()}
     else:
         features = datasets.Features({**FEATURES, "task": datasets.Value("string")})
         cols["task"] = np.array(["t"] * 10)

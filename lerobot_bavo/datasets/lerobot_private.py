@@ -202,7 +202,7 @@ def arrow_table_of(mapping: dict, features):
             return None
         if n is None:
             n = value.shape[0]
-        if value.shape[0] != n:
+        if value.shape[0] != n or n == 0:  # (LeRobot never saves an empty episode; datasets' own path decides)
             return None
         if pa.types.is_fixed_size_list(typ):
             item = typ.value_type
