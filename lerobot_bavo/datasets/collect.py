@@ -72,6 +72,14 @@ from lerobot_bavo.datasets.transaction import (
     WriterSessionSnapshot,
     remove_stray_dirs,
 )
+from lerobot_bavo.datasets.video_codec import (
+    DEFAULT_VIDEO_CODEC,
+    VIDEO_CODECS,
+    check_video_codec,
+    recorded_video_codec,
+    rgb_encoder,
+)
+from lerobot_bavo.datasets.video_codec import record_entry as video_codec_record_entry
 from lerobot_bavo.datasets.writer import StreamingWriter, WriterSession
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
@@ -102,7 +110,9 @@ class CollectConfig:
         keep_failures: keep unsuccessful episodes too (tests / debugging only).
         execution_noise: DART-style noise on the executed arm joint targets; the dataset records the
             expert's clean actions (`experts/perturbation.py`). Off by default.
-        use_videos: store the active image as video (LeRobot's default codec).
+        use_videos: store the active image as video.
+        video_codec: that video's codec (`datasets/video_codec.py`): "h264" or "libsvtav1" (LeRobot's default AV1).
+            None: "h264" for a new dataset, the dataset's own codec when continuing one.
         push_to_hub, private: upload when done.
         max_discard_ratio: abort when more than this many discards per wanted episode (plus 10) occur.
         progress: show a progress bar.
@@ -124,6 +134,7 @@ class CollectConfig:
     keep_failures: bool = False
     execution_noise: ExecutionNoise = field(default_factory=ExecutionNoise)
     use_videos: bool = True
+    video_codec: str | None = None
     push_to_hub: bool = False
     private: bool | None = None
     max_discard_ratio: float = 2.0
@@ -141,6 +152,8 @@ class CollectConfig:
             raise ValueError(f"--commit-every must be >= 1, got {self.commit_every}")
         if self.seed < 0:
             raise ValueError(f"--seed must be >= 0, got {self.seed}")
+        if self.video_codec is not None:
+            check_video_codec(self.video_codec)
         if "/" not in self.repo_id:
             raise ValueError(f"--repo-id must look like '<user>/<name>', got {self.repo_id!r}")
 
@@ -151,8 +164,8 @@ class CollectConfig:
 
         return Path(HF_LEROBOT_HOME) / self.repo_id
 
-    def record_settings(self) -> dict:
-        """What must match for a run to continue an existing dataset."""
+    def record_settings(self, video_codec: str = DEFAULT_VIDEO_CODEC) -> dict:
+        """What must match for a run to continue an existing dataset, recording video with `video_codec`."""
         from lerobot_bavo.envs.tasks import make_task
 
         task = make_task(self.task)
@@ -169,6 +182,8 @@ class CollectConfig:
             # Only when on, so that the records of collections made before the option existed still match.
             **({"execution_noise": self.execution_noise.to_dict()} if self.execution_noise.enabled else {}),
             "use_videos": self.use_videos,
+            # Only when not the codec of datasets made before the choice existed (their records name none).
+            **video_codec_record_entry(video_codec, self.use_videos),
             "teacher": {"name": "simulator-exact", "clip_length": S.CLIP_LENGTH, "anchor_index": S.ANCHOR_INDEX,
                         "n_future": S.N_FUTURE, "visibility_tol_m": 0.01},
         }
@@ -240,7 +255,9 @@ class Collector:
         self.cfg = cfg
         self.root = cfg.resolved_root()
         self.staging = self.root / STAGING
-        self.settings = cfg.record_settings()
+        # a dataset being continued keeps its own codec unless one is asked for (then it must match: `_open`)
+        self.video_codec = cfg.video_codec or DEFAULT_VIDEO_CODEC
+        self.settings = cfg.record_settings(self.video_codec)
         self.record: CollectionRecord | None = None
         self.snapshot = WriterSessionSnapshot(self.root, self.staging / "snapshot")
 
@@ -264,7 +281,7 @@ class Collector:
             features = S.build_features(self.cfg.settings, use_videos=self.cfg.use_videos,
                                         env_state_dim=environment_state_dim(self.cfg.task))
             ds = LeRobotDataset.create(self.cfg.repo_id, S.FPS, features, root=self.root, robot_type="bavo_av_aloha",
-                                       use_videos=self.cfg.use_videos)
+                                       use_videos=self.cfg.use_videos, rgb_encoder=rgb_encoder(self.video_codec))
             ds.finalize()
             del ds
         record = CollectionRecord.load(self.root)
@@ -277,6 +294,9 @@ class Collector:
                     f"make (no {SIDECAR}); choose another --root")
             record = CollectionRecord(repo_id=self.cfg.repo_id, settings=self.settings, next_seed=self.cfg.seed)
         else:
+            recorded_codec = recorded_video_codec(record.settings)
+            if self.cfg.video_codec is None and recorded_codec is not None and self.cfg.use_videos:
+                self._use_video_codec(recorded_codec)
             self._check_settings(record.settings)
         self.record = record
         S.check_features(info["features"], n_points=self.cfg.settings.n_points)
@@ -300,9 +320,18 @@ class Collector:
                 f"{len(self.record.episodes)}; the dataset was modified outside bavo-collect")
         self._save_record()
 
+    def _use_video_codec(self, codec: str) -> None:
+        """Record video with `codec` (the settings keep any entry added since construction, e.g. teleop's)."""
+        self.video_codec = codec
+        self.settings.pop("video_codec", None)
+        self.settings.update(video_codec_record_entry(codec, self.cfg.use_videos))
+
     def _check_settings(self, recorded: dict) -> None:
         diffs = {k: (recorded.get(k), v) for k, v in self.settings.items()
-                 if k not in ("task_description", "stage_targets") and recorded.get(k) != v}
+                 if k not in ("task_description", "stage_targets", "video_codec") and recorded.get(k) != v}
+        now_codec = recorded_video_codec(self.settings)
+        if recorded_video_codec(recorded) != now_codec and now_codec is not None:
+            diffs["video_codec"] = (recorded_video_codec(recorded), now_codec)
         if diffs:
             text = ", ".join(f"{k}: dataset {a!r} vs now {b!r}" for k, (a, b) in diffs.items())
             raise CollectionError(f"{self.root} was collected with other settings ({text}); "
@@ -562,6 +591,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-points", type=int, default=256)
     p.add_argument("--point-frame", default="base", choices=POINT_FRAMES)
     p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")
+    p.add_argument("--vcodec", default=None, choices=VIDEO_CODECS,
+                   help="codec of the active camera's video: h264 (x264, GOP 2, CRF 20, preset faster; the default "
+                        "for a new dataset: the same quality as AV1 for ~4x less CPU) or libsvtav1 (LeRobot's default "
+                        "AV1: GOP 2, CRF 30, preset 12; what bavo-collect wrote before). Default: h264 for a new "
+                        "dataset, the dataset's own codec when continuing one")
     p.add_argument("--keep-failures", action="store_true", help="keep unsuccessful episodes (debugging only)")
     p.add_argument("--execution-noise", type=float, default=0.0, metavar="RAD",
                    help="DART-style demonstrations: execute the expert's arm joint targets plus a slowly varying "
@@ -589,7 +623,11 @@ def main(argv: list[str] | None = None) -> int:
         parent = next((p for p in args.root.absolute().parents if p.exists()), None)
         if parent is not None and not parent.is_dir():
             parser.error(f"--root {args.root}: {parent} is not a folder")
-    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (LeRobot's default video codec): errors only
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (--vcodec libsvtav1): errors only
+    import av
+
+    # libav's own messages below warnings (x264's statistics per episode, the mp4 muxer's "moving the moov atom")
+    av.logging.set_libav_level(av.logging.WARNING)
     from lerobot_bavo.runtime.process import retain_freed_memory
 
     retain_freed_memory()  # this process reads every staged episode (~110-310 MB each) back: reuse the pages
@@ -609,7 +647,7 @@ def main(argv: list[str] | None = None) -> int:
             workers=args.workers, executor=args.executor, ray_address=args.ray_address, seed=args.seed,
             commit_every=args.commit_every,
             settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
-            episode_length=args.episode_length, keep_failures=args.keep_failures,
+            episode_length=args.episode_length, keep_failures=args.keep_failures, video_codec=args.vcodec,
             execution_noise=ExecutionNoise(std=args.execution_noise,
                                            clean_contacts=args.execution_noise_clean_contacts), push_to_hub=args.push_to_hub,
             private=True if args.private else None, progress=not args.no_progress,

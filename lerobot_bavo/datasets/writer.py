@@ -34,6 +34,7 @@ from lerobot_bavo.datasets.lerobot_private import (
     skip_noop_image_embedding,
 )
 from lerobot_bavo.datasets.staging import load_staged
+from lerobot_bavo.datasets.video_codec import encoder_threads, rgb_encoder
 
 logger = logging.getLogger("bavo-collect")
 
@@ -74,9 +75,11 @@ class WriterSession:
         collector._save_record()
         try:  # from here until `close` saves the record, the session is pending: any interruption rolls it back
             cfg = collector.cfg
+            codec = collector.video_codec
             self.ds = LeRobotDataset.resume(cfg.repo_id, root=collector.root, video_backend="pyav",
                                             streaming_encoding=cfg.use_videos,
-                                            encoder_queue_maxsize=max_frames + ENCODER_QUEUE_SLACK)
+                                            encoder_queue_maxsize=max_frames + ENCODER_QUEUE_SLACK,
+                                            rgb_encoder=rgb_encoder(codec), encoder_threads=encoder_threads(codec))
             self.first_index = self.ds.meta.total_episodes
             self._patches.enter_context(skip_noop_image_embedding())
             self._patches.enter_context(exact_fast_episode_stats())
