@@ -6,7 +6,7 @@ Runs a small real collection (default: 6 Stage episodes of Cube Handoff, 2 worke
   without the one-off start-up: process spawn, imports, first renderer), and the 100-episode time
   extrapolated as start-up + 100 / steady rate (an extrapolation, not a measurement);
 - per-episode costs: simulation + expert + segmentation render in a worker, teacher targets,
-  staging, and the main process's LeRobot write (parquet, stats, AV1 video encode), in wall time
+  staging, and the main process's LeRobot write (parquet, stats, video encode), in wall time
   and in CPU time; the CPU time gives a contention-free estimate (other processes on a shared
   machine inflate the wall times);
 - bytes per frame on disk with and without the video, and per parquet column.
@@ -90,7 +90,10 @@ def main() -> None:
 
     datasets.disable_progress_bars()
     import lerobot_bavo.datasets.collect as C
+    from lerobot_bavo.datasets.video_codec import quiet_libav
     from lerobot_bavo.features import ObservationSettings
+
+    quiet_libav()  # as `bavo-collect` does
 
     tmp = None
     root = args.root
@@ -141,7 +144,7 @@ def main() -> None:
     print(f"steady state (first -> last commit): {steady:.2f} episodes/min")
     print(f"EXTRAPOLATED 100 episodes: {extrap_100 / 60:.1f} min (target < 15 min)")
     print(f"per episode: worker {mean('episode_s'):.1f} s (sim + expert + renders), teacher {mean('teacher_s'):.2f} s, "
-          f"staging {mean('stage_s'):.2f} s; main-process LeRobot write (parquet + stats + AV1 encode) {write_per_ep:.1f} s")
+          f"staging {mean('stage_s'):.2f} s; main-process LeRobot write (parquet + stats + video encode) {write_per_ep:.1f} s")
     print(f"CPU per episode: worker {worker_cpu:.1f} s + main-process write {write_cpu:.1f} s = {cpu_per_ep:.1f} s "
           f"-> on {min(args.workers, os.cpu_count() or 1)} otherwise idle cores at most {ideal_rate:.2f} episodes/min, "
           f"100 episodes in ~{100 / ideal_rate:.1f} min + start-up (CPU-bound estimate)")

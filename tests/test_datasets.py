@@ -114,7 +114,7 @@ def test_round_trip_with_delta_timestamps(dataset_root):
     raw = ds.hf_dataset[STEPS + t]
     assert raw[S.ANN_SEED] == 1 and raw[S.ANN_EVENT] == cols[S.ANN_EVENT][t, 0]
     np.testing.assert_allclose(np.asarray(raw[S.OBS_POINT_PIXELS]), cols[S.OBS_POINT_PIXELS][t])
-    # Video frames decode (pyav) close to the recorded images (lossy AV1).
+    # Video frames decode (pyav) close to the recorded images (lossy video: x264 by default).
     img = (item[S.OBS_IMAGE][-1].permute(1, 2, 0).numpy() * 255.0)
     assert np.abs(img - record.rgb[t].astype(np.float64)).mean() < 12.0
 

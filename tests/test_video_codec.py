@@ -100,6 +100,7 @@ def test_new_dataset_is_h264_and_keeps_it_when_continued(tmp_path):
     collect(_config(root, 1))
     assert _image_info(root)["video.codec"] == "h264" and _image_info(root)["video.crf"] == 20
     assert _record_settings(root)["video_codec"] == "h264"
+    assert "| video, H.264 (x264) |" in (root / "README.md").read_text()  # the dataset card says so
     collect(_config(root, 2))  # continued without naming a codec: stays h264
     assert _stream_codecs(root) == {"h264"}
     with pytest.raises(CollectionError, match=r"video_codec: dataset 'h264' vs now 'libsvtav1'"):
@@ -111,6 +112,7 @@ def test_libsvtav1_dataset_looks_like_an_old_one_and_stays_av1(tmp_path):
     collect(_config(root, 1, video_codec="libsvtav1"))
     assert "video_codec" not in _record_settings(root)  # exactly the settings of records made before the choice
     assert _image_info(root)["video.codec"] == "av1" and _image_info(root)["video.crf"] == 30
+    assert "| video, AV1 (SVT-AV1) |" in (root / "README.md").read_text()
     collect(_config(root, 2))  # the default would be h264 for a new dataset; this one keeps AV1
     assert _stream_codecs(root) == {"av1"}
     assert "video_codec" not in _record_settings(root)

@@ -10,9 +10,19 @@ from __future__ import annotations
 from pathlib import Path
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.datasets.video_codec import recorded_video_codec
 from lerobot_bavo.envs.conditions import CONDITIONS
 
 PAPER = "Recovering the View: Benchmarking Physical Active Vision for Occlusion Recovery in Robotic Manipulation (BAVO-Bench / A-FAR), arXiv 2609.37292"
+
+
+_CODEC_NAMES = {"h264": "H.264 (x264)", "libsvtav1": "AV1 (SVT-AV1)"}
+
+
+def _image_storage(settings: dict) -> str:
+    """How the active image is stored: "video, <codec>" (see `video_codec.py`) or "image" (PNG in the parquet)."""
+    codec = recorded_video_codec(settings)
+    return "image" if codec is None else f"video, {_CODEC_NAMES.get(codec, codec)}"
 
 
 def _feature_rows(settings: dict) -> list[str]:
@@ -24,7 +34,7 @@ def _feature_rows(settings: dict) -> list[str]:
         "|---|---|---|---|",
         f"| `{S.OBS_STATE}` | (21,) | float32 | joint state: left arm 6 + gripper, right arm 6 + gripper, camera arm 7 (rad; grippers 0 closed .. 1 open) |",
         f"| `{S.ACTION}` | (21,) | float32 | absolute joint targets (same order) sent after this frame's observation; 25 Hz |",
-        f"| `{S.OBS_IMAGE}` | ({h}, {w}, 3) | video | active-camera RGB (the camera rides on the 7-DoF camera arm) |",
+        f"| `{S.OBS_IMAGE}` | ({h}, {w}, 3) | {_image_storage(settings)} | active-camera RGB (the camera rides on the 7-DoF camera arm) |",
         f"| `{S.OBS_POINT_CLOUD}` | ({n * 6},) | float32 | ({n}, 6) row-major: xyz in the {frame} frame (m) + rgb in [0, 1]; {n} farthest-point samples of the workspace crop |",
         f"| `{S.OBS_POINT_PIXELS}` | ({n * 2},) | float32 | ({n}, 2) row-major: source pixel (u = column, v = row) of each point; -1 for an empty view |",
         f"| `{S.OBS_CAMERA_POSE}` | (16,) | float32 | T_B<-C (4 x 4 row-major): camera-to-base transform, OpenCV camera axes (x right, y down, z forward) |",

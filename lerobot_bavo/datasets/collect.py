@@ -30,6 +30,9 @@ How it works:
   and marks the commit pending in the record; a pending commit found at start-up is rolled back
   (new files deleted, metadata restored) and redone from the staged episodes, which are deleted
   only after the record says they are committed. Finished episodes are never lost or duplicated.
+- The active camera is stored as video (`video_codec.py`): x264 for a new dataset (GOP 2, CRF 20, one thread, SSE4.2
+  SIMD: the same quality as LeRobot's SVT-AV1 for ~4x less CPU, and reproducible bytes), `--vcodec libsvtav1` for
+  LeRobot's AV1 (what earlier versions wrote); a dataset being continued keeps its own codec.
 - At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`), the
   dataset card (README.md), and optionally `push_to_hub` (needs `huggingface-cli login`).
 
@@ -76,6 +79,7 @@ from lerobot_bavo.datasets.video_codec import (
     DEFAULT_VIDEO_CODEC,
     VIDEO_CODECS,
     check_video_codec,
+    quiet_libav,
     recorded_video_codec,
     rgb_encoder,
 )
@@ -624,10 +628,7 @@ def main(argv: list[str] | None = None) -> int:
         if parent is not None and not parent.is_dir():
             parser.error(f"--root {args.root}: {parent} is not a folder")
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (--vcodec libsvtav1): errors only
-    import av
-
-    # libav's own messages below warnings (x264's statistics per episode, the mp4 muxer's "moving the moov atom")
-    av.logging.set_libav_level(av.logging.WARNING)
+    quiet_libav()
     from lerobot_bavo.runtime.process import retain_freed_memory
 
     retain_freed_memory()  # this process reads every staged episode (~110-310 MB each) back: reuse the pages

@@ -91,3 +91,11 @@ def record_entry(codec: str, use_videos: bool) -> dict:
     if not use_videos or codec == LEGACY_VIDEO_CODEC:
         return {}
     return {"video_codec": check_video_codec(codec)}
+
+
+def quiet_libav() -> None:
+    """Silence libav's own messages below warnings (x264's statistics after every episode, the mp4 muxer's
+    "moving the moov atom"): LeRobot's encoder threads hand libav back its default logger, which prints them."""
+    import av
+
+    av.logging.set_libav_level(av.logging.WARNING)

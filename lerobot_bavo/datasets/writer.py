@@ -6,8 +6,8 @@ the commit pending in the collection record, `LeRobotDataset.resume`, append sta
 before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
 after the record says they are committed, so a rolled-back commit is redone from them by the next run.
 
-Why episode by episode (`StreamingWriter`, issue 11): the writer is about 40 % of collection CPU (LeRobot's
-AV1 stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at once
+Why episode by episode (`StreamingWriter`, issue 11): the writer was about 40 % of collection CPU (LeRobot's
+video stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at once
 (~20 s for 10), the 2 x `--workers` attempts in flight ran out during the commit, and the last batch was
 written after every worker had finished: a CPU trace of a 30-episode run on an idle 2-core machine showed the
 cores ~9 % idle. Now each kept episode is written as soon as it and every lower seed are resolved (~2 s, less

@@ -243,6 +243,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("lerobot", "datasets", "libav", "huggingface_hub", "aiohttp.access"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
+    from lerobot_bavo.datasets.video_codec import quiet_libav
+
+    quiet_libav()
     if args.replay is not None:
         return _replay(args)
     if not args.task or not args.repo_id:
