@@ -94,6 +94,14 @@ def test_unknown_codec_is_a_clear_error(tmp_path, capsys):
         rgb_encoder("av1")
 
 
+def test_a_missing_encoder_names_the_way_out(monkeypatch):
+    from lerobot.configs.video import VideoEncoderConfig
+
+    monkeypatch.setattr(VideoEncoderConfig, "detect_available_encoders", lambda self, encoders: [])
+    with pytest.raises(ValueError, match=r"video codec 'h264' cannot be used with this PyAV build .*--vcodec \(libsvtav1\)"):
+        rgb_encoder("h264")
+
+
 # ----------------------------------------------------------------------------- collections
 def test_new_dataset_is_h264_and_keeps_it_when_continued(tmp_path):
     root = tmp_path / "h264"

@@ -70,7 +70,12 @@ def rgb_encoder(codec: str):
     fields = dict(_ENCODER_FIELDS[check_video_codec(codec)])
     if codec == "h264":
         fields["extra_options"] = x264_simd_limit()
-    return RGBEncoderConfig(**fields)
+    try:  # LeRobot checks that PyAV's FFmpeg has the encoder and accepts the options
+        return RGBEncoderConfig(**fields)
+    except ValueError as e:
+        others = ", ".join(c for c in VIDEO_CODECS if c != codec)
+        raise ValueError(f"video codec {codec!r} cannot be used with this PyAV build ({e}); "
+                         f"choose another with --vcodec ({others})") from None
 
 
 def encoder_threads(codec: str) -> int | None:
