@@ -15,8 +15,8 @@ Reproducibility (the same seeds give the same video bytes):
   machine's core count, and one thread is also its cheapest setting on 2 busy cores.
 - On x86-64, x264 is limited to its SSE4.2 SIMD code (`x264-params: asm=SSE4.2`, `x264_simd_limit`). Its
   AVX-512 code (x264 core 165, as bundled with PyAV 15) gave a different bitstream from run to run inside
-  `bavo-collect` (4 of 6 identical 1-episode collections at 240 x 320 differed; with `asm=0` or a limit
-  below AVX-512, 12 of 12 agreed), so it reads memory it does not own. Its SSE4.2 and AVX2 code give the same
+  `bavo-collect` (4 of 6 identical 1-episode collections at 240 x 320 differed; with `asm=SSE4.2` 12 of 12
+  agreed, with `asm=AVX2` 6 of 6, and with `asm=0` 6 of 6 at 48 x 64), so it reads memory it does not own. Its SSE4.2 and AVX2 code give the same
   bytes and, at 240 x 320, the same CPU time (0.64 vs 0.62 s per 523 frames), so SSE4.2 is the limit: every
   x86-64 machine since 2011 has it, and the recorded encoder options are the same on all of them. Other
   architectures use x264's own choice.
