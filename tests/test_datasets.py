@@ -266,6 +266,23 @@ def _discard_odd_seeds(real_run_job):
     return run
 
 
+def test_an_option_recorded_only_when_used_must_match_too(tmp_path):
+    """The settings check compares both sides' keys: a dataset recorded with execution noise (an entry only noisy
+    records have) is not continued by a run without it, nor a human (teleop) dataset by the expert."""
+    from lerobot_bavo.experts.perturbation import ExecutionNoise
+
+    root = tmp_path / "noisy"
+    collect(_config(root, 1, execution_noise=ExecutionNoise(std=0.01)))
+    with pytest.raises(CollectionError, match=r"execution_noise: dataset \{'std': 0.01.*\} vs now None"):
+        collect(_config(root, 2))
+    record = read_sidecar(root)
+    record["settings"]["source"] = "human"
+    record["settings"].pop("execution_noise")
+    (root / "meta" / "bavo_collection.json").write_text(json.dumps(record))
+    with pytest.raises(CollectionError, match=r"source: dataset 'human' vs now None"):
+        collect(_config(root, 2))
+
+
 def test_resume_after_a_kill_inside_a_commit(tmp_path, monkeypatch):
     """Kill while the second writer session is half written; the next run rolls it back and finishes
     with exactly the requested episodes: unique seeds, in order, discards recorded, nothing re-run."""

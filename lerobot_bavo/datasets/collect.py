@@ -260,10 +260,14 @@ class Collector:
         self.root = cfg.resolved_root()
         self.staging = self.root / STAGING
         # a dataset being continued keeps its own codec unless one is asked for (then it must match: `_open`)
-        self.video_codec = cfg.video_codec or DEFAULT_VIDEO_CODEC
-        self.settings = cfg.record_settings(self.video_codec)
+        self.settings = cfg.record_settings(cfg.video_codec or DEFAULT_VIDEO_CODEC)
         self.record: CollectionRecord | None = None
         self.snapshot = WriterSessionSnapshot(self.root, self.staging / "snapshot")
+
+    @property
+    def video_codec(self) -> str:
+        """The codec this run records video with: the one its settings name (`video_codec.py`)."""
+        return recorded_video_codec(self.settings) or DEFAULT_VIDEO_CODEC
 
     def _save_record(self) -> None:
         self.record.save(self.root)
@@ -326,16 +330,21 @@ class Collector:
 
     def _use_video_codec(self, codec: str) -> None:
         """Record video with `codec` (the settings keep any entry added since construction, e.g. teleop's)."""
-        self.video_codec = codec
         self.settings.pop("video_codec", None)
         self.settings.update(video_codec_record_entry(codec, self.cfg.use_videos))
 
     def _check_settings(self, recorded: dict) -> None:
-        diffs = {k: (recorded.get(k), v) for k, v in self.settings.items()
-                 if k not in ("task_description", "stage_targets", "video_codec") and recorded.get(k) != v}
-        now_codec = recorded_video_codec(self.settings)
-        if recorded_video_codec(recorded) != now_codec and now_codec is not None:
-            diffs["video_codec"] = (recorded_video_codec(recorded), now_codec)
+        """Refuse to continue a dataset recorded with other settings. Both sides' keys are compared: options that
+        are recorded only when used (execution noise, a codec other than the legacy one, teleop's human source)
+        must be absent on both sides or equal. The codec is compared as `recorded_video_codec` reads it, so a
+        record made before the choice existed reads as 'libsvtav1'."""
+        def view(settings: dict) -> dict:
+            return {**settings, "video_codec": recorded_video_codec(settings)}
+
+        was, now = view(recorded), view(self.settings)
+        keys = [*now, *(k for k in was if k not in now)]
+        diffs = {k: (was.get(k), now.get(k)) for k in keys
+                 if k not in ("task_description", "stage_targets") and was.get(k) != now.get(k)}
         if diffs:
             text = ", ".join(f"{k}: dataset {a!r} vs now {b!r}" for k, (a, b) in diffs.items())
             raise CollectionError(f"{self.root} was collected with other settings ({text}); "
