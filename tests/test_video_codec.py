@@ -9,7 +9,6 @@ existed (no `video_codec` entry) still match. Small real collections: Cube Hando
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 
 import av
@@ -18,6 +17,7 @@ import pytest
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, CollectionError, build_parser, collect
+from lerobot_bavo.datasets.hub import read_info, read_sidecar
 from lerobot_bavo.datasets.video_codec import (
     DEFAULT_VIDEO_CODEC,
     LEGACY_VIDEO_CODEC,
@@ -39,11 +39,11 @@ def _config(root: Path, episodes: int, **kw) -> CollectConfig:
 
 
 def _image_info(root: Path) -> dict:
-    return json.loads((root / "meta" / "info.json").read_text())["features"][S.OBS_IMAGE]["info"]
+    return read_info(root)["features"][S.OBS_IMAGE]["info"]
 
 
 def _record_settings(root: Path) -> dict:
-    return json.loads((root / "meta" / "bavo_collection.json").read_text())["settings"]
+    return read_sidecar(root)["settings"]
 
 
 def _videos(root: Path) -> list[Path]:
