@@ -37,7 +37,7 @@ ENV_OPT_OUT = "BAVO_FAST_DATASET"
 _BOOKKEEPING = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
 
-def _column_array(column: pa.ChunkedArray) -> np.ndarray:
+def column_array(column: pa.ChunkedArray) -> np.ndarray:
     """An Arrow column of scalars or fixed-size lists -> one contiguous array (rows, ...), in memory."""
     arr = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
     shape = [len(arr)]
@@ -73,60 +73,80 @@ def supports(dataset) -> str | None:
 
 
 class InMemoryReader:
-    """Serves `LeRobotDataset.__getitem__` from tensors held in memory; same items as LeRobot's reader.
+    """Serves `LeRobotDataset.__getitem__` (and whole batches) from tensors held in memory; same items as
+    LeRobot's reader.
 
     Wraps (and delegates everything else to) the dataset's own `DatasetReader`, so `hf_dataset`,
     `episodes`, `num_frames` and the rest are LeRobot's.
+
+    The columns are CPU torch tensors so that a DataLoader worker started with `spawn` (LeRobot's default,
+    `--num_workers=4`) receives them through torch's shared-memory pickling instead of a byte copy per worker.
     """
 
     def __init__(self, reader):
         self._reader = reader
         table = reader.hf_dataset.data
-        # numpy, not torch: a sample is a few small fancy-indexing copies, which torch would spread over its
-        # intra-op threads (and stall for ms when the training process keeps the cores busy).
-        self.columns = {name: _column_array(table.column(name)) for name in table.column_names}
+        self.columns = {name: torch.from_numpy(column_array(table.column(name))) for name in table.column_names}
         meta = reader._meta
         # Episode bounds in absolute frame indices, as LeRobot's `_get_query_indices` reads them.
         eps = meta.episodes
-        self._ep_from = np.asarray(eps["dataset_from_index"], dtype=np.int64)
-        self._ep_to = np.asarray(eps["dataset_to_index"], dtype=np.int64)
-        abs_np = self.columns["index"]
-        # absolute -> relative row (episode-filtered datasets hold a subset of rows)
-        self._contiguous = bool(len(abs_np) == 0 or np.array_equal(abs_np, np.arange(abs_np[0], abs_np[0] + len(abs_np))))
-        self._first = int(abs_np[0]) if len(abs_np) else 0
+        self._ep_from = torch.as_tensor(np.asarray(eps["dataset_from_index"], dtype=np.int64))
+        self._ep_to = torch.as_tensor(np.asarray(eps["dataset_to_index"], dtype=np.int64))
+        abs_idx = self.columns["index"].to(torch.int64)
+        self._abs = abs_idx
+        # absolute -> relative row (episode-filtered datasets hold a subset of rows): a dense lookup table
+        self._first = int(abs_idx[0]) if len(abs_idx) else 0
+        self._contiguous = bool(len(abs_idx) == 0 or torch.equal(abs_idx, torch.arange(self._first, self._first + len(abs_idx))))
+        self._rel = None
         if not self._contiguous:
-            self._rel = {int(a): i for i, a in enumerate(abs_np)}
+            self._rel = torch.full((int(abs_idx.max()) - self._first + 1,), -1, dtype=torch.int64)
+            self._rel[abs_idx - self._first] = torch.arange(len(abs_idx))
         self._delta = (
-            {k: np.asarray(v, dtype=np.int64) for k, v in reader.delta_indices.items()}
+            {k: torch.as_tensor(np.asarray(v, dtype=np.int64)) for k, v in reader.delta_indices.items()}
             if reader.delta_indices is not None else None
         )
-        self._tasks = meta.tasks
+        self._task_names = [str(name) for name in meta.tasks.index]
 
-    def __getattr__(self, name):  # everything but get_item is LeRobot's reader
+    def __getattr__(self, name):  # everything but the item methods is LeRobot's reader
+        if name.startswith("__") or name == "_reader":  # pickling looks these up before __dict__ is restored
+            raise AttributeError(name)
         return getattr(self._reader, name)
 
-    def _relative(self, absolute: np.ndarray) -> np.ndarray:
+    def _relative(self, absolute: torch.Tensor) -> torch.Tensor:
         if self._contiguous:
             return absolute - self._first
-        return np.array([self._rel[int(a)] for a in absolute], dtype=np.int64)
+        return self._rel[absolute - self._first]
+
+    def get_batch(self, indices) -> dict:
+        """The items of relative rows `indices`, stacked: each key (B, ...), `<key>_is_pad` (B, K), and `task` a
+        list of B strings. One gather per column for the whole batch."""
+        idx = torch.as_tensor(np.asarray(indices, dtype=np.int64)).reshape(-1)
+        cols = self.columns
+        batch = {key: col[idx] for key, col in cols.items()}
+        if self._delta is not None:
+            ep = cols["episode_index"][idx].to(torch.int64)
+            abs_idx = self._abs[idx]
+            start, end = self._ep_from[ep][:, None], self._ep_to[ep][:, None]
+            for key, delta in self._delta.items():
+                target = abs_idx[:, None] + delta[None]
+                batch[f"{key}_is_pad"] = (target < start) | (target >= end)
+                if key in cols:
+                    rows = self._relative(torch.minimum(torch.maximum(target, start), end - 1))
+                    batch[key] = cols[key][rows]
+        batch["task"] = [self._task_names[int(t)] for t in cols["task_index"][idx]]
+        return batch
+
+    def get_items(self, indices) -> list[dict]:
+        """LeRobot's items for relative rows `indices` (what a DataLoader batch asks for), gathered in one step
+        (`get_batch`) and handed out as per-item views for the DataLoader's collate function."""
+        batch = self.get_batch(indices)
+        keys = list(batch)
+        return [{k: batch[k][i] for k in keys} for i in range(len(batch["task"]))]
 
     def get_item(self, idx) -> dict:
         """LeRobot's item for relative row `idx`: the row, each delta window clamped to the episode with its
         `<key>_is_pad` flags, and the task string (`DatasetReader.get_item`, without video)."""
-        idx = int(idx)
-        cols = self.columns
-        item = {key: torch.from_numpy(np.array(col[idx])) for key, col in cols.items()}
-        if self._delta is not None:
-            ep_idx = int(cols["episode_index"][idx])
-            abs_idx = int(cols["index"][idx])
-            start, end = int(self._ep_from[ep_idx]), int(self._ep_to[ep_idx])
-            for key, delta in self._delta.items():
-                target = abs_idx + delta
-                item[f"{key}_is_pad"] = torch.from_numpy((target < start) | (target >= end))
-                if key in cols:
-                    item[key] = torch.from_numpy(cols[key][self._relative(np.clip(target, start, end - 1))])
-        item["task"] = self._tasks.iloc[int(cols["task_index"][idx])].name
-        return item
+        return self.get_items([int(idx)])[0]
 
 
 def use_in_memory_reader(dataset) -> bool:
@@ -142,30 +162,62 @@ def use_in_memory_reader(dataset) -> bool:
     return True
 
 
-def install_lerobot_train_hook() -> bool:
-    """Make the `LeRobotDataset`s built by LeRobot's dataset factory (`lerobot-train`) use the in-memory reader.
+_IN_MEMORY_CLASS = None
 
-    The factory module (`lerobot.datasets.factory`) looks `LeRobotDataset` up as a module global when it
-    builds the train (and eval) datasets; it is replaced there, and only there, by a subclass that swaps the
-    reader after LeRobot's own constructor ran. Idempotent; does nothing with `BAVO_FAST_DATASET=0`.
+
+def in_memory_dataset_class():
+    """`InMemoryLeRobotDataset`: LeRobot's `LeRobotDataset`, whose samples come from memory when
+    `use_in_memory_reader` accepts it, and which hands a DataLoader whole batches (`__getitems__`).
+
+    Built on first use (it subclasses LeRobot's class, and `import lerobot_bavo` must not import LeRobot) and
+    reachable as `lerobot_bavo.datasets.fast.InMemoryLeRobotDataset`, so that pickle finds it in the DataLoader
+    workers LeRobot starts with `spawn`.
     """
-    if os.environ.get(ENV_OPT_OUT, "1").strip().lower() in ("0", "false", "no", "off"):
-        return False
-    from lerobot.datasets import factory
+    global _IN_MEMORY_CLASS
+    if _IN_MEMORY_CLASS is not None:
+        return _IN_MEMORY_CLASS
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    if getattr(factory.LeRobotDataset, "_bavo_in_memory", False):
-        return True
-
     class InMemoryLeRobotDataset(LeRobotDataset):
-        """LeRobot's dataset; its samples come from memory when `use_in_memory_reader` accepts it."""
-
         _bavo_in_memory = True
 
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
             use_in_memory_reader(self)
 
-    InMemoryLeRobotDataset.__name__ = InMemoryLeRobotDataset.__qualname__ = "LeRobotDataset"
-    factory.LeRobotDataset = InMemoryLeRobotDataset
+        def __getitems__(self, indices: list[int]) -> list[dict]:
+            """A DataLoader batch in one gather (torch's fetcher calls this instead of `__getitem__` per index)."""
+            if isinstance(self.reader, InMemoryReader) and (self.writer is None or self._is_finalized):
+                return self.reader.get_items(indices)
+            return [self[i] for i in indices]
+
+    InMemoryLeRobotDataset.__doc__ = in_memory_dataset_class.__doc__
+    InMemoryLeRobotDataset.__module__ = __name__
+    InMemoryLeRobotDataset.__qualname__ = "InMemoryLeRobotDataset"
+    InMemoryLeRobotDataset.__name__ = "LeRobotDataset"  # what LeRobot's logs and reprs show
+    _IN_MEMORY_CLASS = InMemoryLeRobotDataset
+    return InMemoryLeRobotDataset
+
+
+def __getattr__(name: str):
+    if name == "InMemoryLeRobotDataset":
+        return in_memory_dataset_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def install_lerobot_train_hook() -> bool:
+    """Make the `LeRobotDataset`s built by LeRobot's dataset factory (`lerobot-train`) use the in-memory reader.
+
+    The factory module (`lerobot.datasets.factory`) looks `LeRobotDataset` up as a module global when it
+    builds the train (and eval) datasets; it is replaced there, and only there, by `InMemoryLeRobotDataset`,
+    which swaps the reader after LeRobot's own constructor ran. Idempotent; does nothing with
+    `BAVO_FAST_DATASET=0`.
+    """
+    if os.environ.get(ENV_OPT_OUT, "1").strip().lower() in ("0", "false", "no", "off"):
+        return False
+    from lerobot.datasets import factory
+
+    if getattr(factory.LeRobotDataset, "_bavo_in_memory", False):
+        return True
+    factory.LeRobotDataset = in_memory_dataset_class()
     return True

@@ -68,6 +68,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     SOURCES,
     TEACHER_CHANNELS,
     TEACHER_KEYS,
+    TEACHER_OCCLUDER,
     TEACHER_VALID,
     TEACHER_VISIBLE,
     TEACHER_Z0,
@@ -87,8 +88,7 @@ N_FUTURE = FUTURE_INDEX - ANCHOR_INDEX
 
 def joint_names() -> list[str]:
     """The 21 state / action entry names, in order."""
-    man = [*C.MANIPULATOR_JOINTS, "gripper"]
-    return [f"left_{j}" for j in man] + [f"right_{j}" for j in man] + [f"cam_{j}" for j in C.CAMERA_ARM_JOINTS]
+    return list(C.ACTION_NAMES)
 
 
 def build_features(settings: ObservationSettings, use_videos: bool = True, env_state_dim: int = 0) -> dict[str, dict]:

@@ -121,6 +121,12 @@ RIGHT_ARM = slice(7, 13)
 RIGHT_GRIPPER = 13
 CAMERA_ARM = slice(14, 21)
 GRIPPER_INDICES = (LEFT_GRIPPER, RIGHT_GRIPPER)
+# Names of the 21 state / action entries, in order (the datasets' `names`; policies recognise BAVO's action by them).
+ACTION_NAMES = tuple(
+    [f"left_{j}" for j in (*MANIPULATOR_JOINTS, "gripper")]
+    + [f"right_{j}" for j in (*MANIPULATOR_JOINTS, "gripper")]
+    + [f"cam_{j}" for j in CAMERA_ARM_JOINTS]
+)
 
 MANIPULATOR_HOME = (0.0, -0.082, 1.06, 0.0, -0.953, 0.0)
 GRIPPER_HOME = 1.0

@@ -12,7 +12,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 # wxyz quaternion), one token per object; used by the first rung of the failure ladder
 # (docs/results/ladder_cube_handoff.md). Training-only targets ride along under TEACHER_PREFIX (see
 # `validate_features`).
-from lerobot_bavo.sim.constants import GRIPPER_INDICES
+from lerobot_bavo.sim.constants import ACTION_DIM, ACTION_NAMES, GRIPPER_INDICES
 from lerobot_bavo.features import OBS_ENV_STATE, OBS_POINT_CLOUD, POSE_CHANNELS, TEACHER_PREFIX
 
 # Size presets. `paper` is ManiFlow's DiT-X (768 wide, 12 layers, 8 heads; ~180 M parameters) with the
@@ -47,6 +47,14 @@ MANIFLOW_PRESETS: dict[str, dict] = {
         "dropout": 0.0,
     },
 }
+
+
+def default_binary_action_dims(names=None, action_dim: int | None = None) -> tuple[int, ...]:
+    """The action dimensions snapped to open / closed by default: BAVO's gripper commands when the action is
+    BAVO's (its entry names when known, else its size), none for any other robot's action."""
+    if names is not None:
+        return GRIPPER_INDICES if tuple(names) == ACTION_NAMES else ()
+    return GRIPPER_INDICES if action_dim == ACTION_DIM else ()
 
 
 @PreTrainedConfig.register_subclass("maniflow")
@@ -131,8 +139,10 @@ class ManiFlowConfig(PreTrainedConfig):
             lies in, before unnormalising (as Diffusion Policy's `clip_sample`). Why: a 1-2 step flow sample can
             overshoot the data range (measured: gripper commands of -0.4 on a [0, 1] gripper), which no
             demonstration ever shows.
-        binary_action_dims: Action dimensions executed as binary commands (default: BAVO's two gripper commands,
-            `sim.constants.GRIPPER_INDICES`, 0 closed .. 1 open). At inference each of them is snapped to the
+        binary_action_dims: Action dimensions executed as binary commands. None (default) follows the dataset:
+            BAVO's two gripper commands (`sim.constants.GRIPPER_INDICES`, 0 closed .. 1 open) when the dataset's
+            action names are BAVO's (or, with no names known, when the action is BAVO's 21-dim one), none
+            otherwise; the resolved value is saved with the checkpoint. At inference each of them is snapped to the
             nearer end of its training range (normalised value > 0 -> +1, else -1: fully open or fully closed).
             Why: the experts' gripper commands are open (1) until a grasp and then ramp to closed (0); a 1-2 step
             flow sample drifts off 1 during the approach (measured: 0.9 to 0.4 while the arm is still 10 cm above
@@ -158,6 +168,12 @@ class ManiFlowConfig(PreTrainedConfig):
         optimizer_weight_decay: AdamW weight decay.
         optimizer_grad_clip_norm: Gradient clipping used by lerobot-train; 0 disables it (ManiFlow clips none).
         scheduler_warmup_steps: Linear warm-up steps of the cosine learning-rate schedule.
+        occluder_dropout: Probability, per training sample, that the cloud's points on the benchmark occluder
+            are moved behind the points the policy reads (`policies/augment.py`), so that the sample looks like
+            the same scene without the panel. Why: the Stage occluder sits on the line of sight to the current
+            target, a position cue a policy can learn instead of the target (docs/results/occluder_shortcut.md).
+            Needs the training-only label `observation.teacher.occluder` of the `points` training view;
+            0 (default) turns it off. Inference is unchanged.
     """
 
     # Input / output structure.
@@ -195,7 +211,7 @@ class ManiFlowConfig(PreTrainedConfig):
     num_inference_steps: int = 10
     use_ema_for_inference: bool = True
     clip_actions: bool = True
-    binary_action_dims: tuple[int, ...] = GRIPPER_INDICES
+    binary_action_dims: tuple[int, ...] | None = None
 
     # Training objective and EMA.
     ema_power: float = 0.75
@@ -214,6 +230,9 @@ class ManiFlowConfig(PreTrainedConfig):
     optimizer_weight_decay: float = 1e-3
     optimizer_grad_clip_norm: float = 0.0
     scheduler_warmup_steps: int = 500
+
+    # Training-time augmentation.
+    occluder_dropout: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
@@ -251,12 +270,11 @@ class ManiFlowConfig(PreTrainedConfig):
                 "`clip_actions=True` clamps normalised actions to [-1, 1], which is their range only under MIN_MAX "
                 f"normalisation; ACTION is normalised with {action_mode}. Set `--policy.clip_actions=false`."
             )
-        self.binary_action_dims = tuple(int(d) for d in self.binary_action_dims)
-        if self.binary_action_dims and action_mode != NormalizationMode.MIN_MAX:
-            raise ValueError(
-                "`binary_action_dims` snaps normalised actions to -1 / +1, the ends of their range only under MIN_MAX "
-                f"normalisation; ACTION is normalised with {action_mode}. Set `--policy.binary_action_dims=[]`."
-            )
+        if self.binary_action_dims is not None:
+            self.binary_action_dims = tuple(int(d) for d in self.binary_action_dims)
+        self._check_binary_action_dims_mode()
+        if not 0.0 <= self.occluder_dropout <= 1.0:
+            raise ValueError(f"`occluder_dropout` must be a probability in [0, 1]. Got {self.occluder_dropout}.")
         if not 0.0 <= self.flow_batch_ratio <= 1.0:
             raise ValueError(f"`flow_batch_ratio` must be in [0, 1]. Got {self.flow_batch_ratio}.")
         if self.consistency_t_bins < 1:
@@ -276,6 +294,22 @@ class ManiFlowConfig(PreTrainedConfig):
         # LeRobot's `diffuser` cosine scheduler needs the optional `diffusers` package; this one has the same
         # shape (linear warm-up, then cosine to zero over the remaining steps) with no extra dependency.
         return CosineAnnealingWithWarmupSchedulerConfig(num_warmup_steps=self.scheduler_warmup_steps)
+
+    def _check_binary_action_dims_mode(self) -> None:
+        action_mode = self.normalization_mapping.get("ACTION")
+        if self.binary_action_dims and action_mode != NormalizationMode.MIN_MAX:
+            raise ValueError(
+                "`binary_action_dims` snaps normalised actions to -1 / +1, the ends of their range only under MIN_MAX "
+                f"normalisation; ACTION is normalised with {action_mode}. Set `--policy.binary_action_dims=[]`."
+            )
+
+    def set_dataset_feature_metadata(self, features: dict) -> None:
+        """Called by LeRobot's `make_policy` with the dataset's feature dict: resolves the dataset-dependent
+        defaults (`binary_action_dims`) from the action's names."""
+        if self.binary_action_dims is None:
+            names = (features.get(ACTION) or {}).get("names")
+            self.binary_action_dims = default_binary_action_dims(names=names)
+            self._check_binary_action_dims_mode()
 
     def validate_features(self) -> None:
         if self.input_features:
@@ -299,6 +333,9 @@ class ManiFlowConfig(PreTrainedConfig):
             raise ValueError(f"{type(self).__name__} needs '{ACTION}' among the output features.")
         if self.output_features:
             action_dim = int(self.output_features[ACTION].shape[0])
+            if self.binary_action_dims is None:  # no dataset names seen (built from an env or an old config)
+                self.binary_action_dims = default_binary_action_dims(action_dim=action_dim)
+                self._check_binary_action_dims_mode()
             bad = [d for d in self.binary_action_dims if not 0 <= d < action_dim]
             if bad:
                 raise ValueError(
