@@ -44,6 +44,10 @@ TEACHER_ZF = f"{TEACHER_PREFIX}.zf"
 TEACHER_VISIBLE = f"{TEACHER_PREFIX}.visible"
 TEACHER_VALID = f"{TEACHER_PREFIX}.valid"
 TEACHER_KEYS = (TEACHER_Z0, TEACHER_ZF, TEACHER_VISIBLE, TEACHER_VALID)
+# (N,) float32, 1 where the cloud point lies on the benchmark occluder: a label derived from the occluder's pose
+# when a `points` training view is made, for the occluder-dropout training recipe (`policies/augment.py`).
+# Not part of a collected dataset.
+TEACHER_OCCLUDER = f"{TEACHER_PREFIX}.occluder"
 
 # Dataset annotations (never reach a policy).
 ANNOTATION_PREFIX = "annotation"

@@ -11,7 +11,9 @@ so they must be trained on a copy without it.
 Two views, each written with LeRobot's own `dataset_tools.remove_feature` (so stats, episode
 metadata and videos stay consistent):
 
-- `points`: state, action, point cloud and the cached teacher features (`maniflow`, `afar`);
+- `points`: state, action, point cloud and the cached teacher features (`maniflow`, `afar`), plus, for
+  base-frame clouds of datasets with `annotation.occluder_pose`, the training-only per-point label
+  `observation.teacher.occluder` (1 on the benchmark occluder) that the occluder-dropout recipe reads;
 - `images`: state, action and the active-camera video (`act`, `diffusion`, ...);
 - `state`: state, action and the privileged object poses `observation.environment_state`
   (the privileged-state rung of the failure ladder: `maniflow` without perception).
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
 from lerobot.utils.constants import DEFAULT_FEATURES  # bookkeeping columns every LeRobot dataset has
 
 from lerobot_bavo.datasets import schema as S
@@ -80,7 +83,33 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     if output_root.exists():
         raise FileExistsError(f"{output_root} exists; remove it or pass another --output-root")
     drop = removed_features(source.meta.features, view)
+    record = read_sidecar(root)
+    point_frame = (record or {}).get("settings", {}).get("point_frame", "base")
+    if view == "points" and S.ANN_OCCLUDER_POSE in source.meta.features and point_frame == "base":
+        from lerobot.datasets.dataset_tools import modify_features
+
+        labels = occluder_point_labels(source)
+        info = {"dtype": "float32", "shape": [labels.shape[1]], "names": None}
+        return modify_features(source, add_features={S.TEACHER_OCCLUDER: (labels, info)}, remove_features=drop,
+                               output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
     return remove_feature(source, drop, output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
+
+
+def occluder_point_labels(source, rows_per_block: int = 4096) -> np.ndarray:
+    """(frames, N) float32: 1 where a frame's cloud point lies on the benchmark occluder (`points_on_occluder`
+    with the frame's `annotation.occluder_pose`), in the dataset's row order. Base-frame clouds only."""
+    from lerobot_bavo.datasets.fast import column_array
+    from lerobot_bavo.envs.occlusion import points_on_occluder
+
+    table = source.hf_dataset.data
+    cloud = column_array(table.column(S.OBS_POINT_CLOUD))
+    pose = column_array(table.column(S.ANN_OCCLUDER_POSE))
+    n = cloud.shape[1] // S.POINT_CHANNELS
+    out = np.zeros((len(cloud), n), dtype=np.float32)
+    for a in range(0, len(cloud), rows_per_block):
+        xyz = cloud[a:a + rows_per_block].reshape(-1, n, S.POINT_CHANNELS)[..., :3]
+        out[a:a + rows_per_block] = points_on_occluder(xyz, pose[a:a + rows_per_block])
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:

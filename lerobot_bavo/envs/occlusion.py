@@ -30,6 +30,8 @@ __all__ = [
     "stage_index",
     "panel_rotation_facing",
     "candidate_placements",
+    "OCCLUDER_POINT_MARGIN",
+    "points_on_occluder",
 ]
 
 # --- schedules ---
@@ -149,6 +151,46 @@ def candidate_placements(camera_pos: np.ndarray, target_pos: np.ndarray) -> list
             centre = camera_pos + view / dist * d + rot[:, 1] * dy + rot[:, 2] * dz
             out.append((centre, rot))
     return out
+
+
+# How far (metres) outside the panel's box a cloud point may lie and still count as the panel's
+# (`points_on_occluder`): depth back-projection puts the panel's points on its camera-facing face,
+# 3 mm from the centre plane, and FPS may keep points on its rim.
+OCCLUDER_POINT_MARGIN = 0.01
+
+
+def points_on_occluder(xyz: np.ndarray, pose: np.ndarray, margin: float = OCCLUDER_POINT_MARGIN) -> np.ndarray:
+    """Which cloud points lie on the occluder panel: (..., N) bool.
+
+    Why: training-time labels for the occluder-dropout recipe (`policies/augment.py`); the panel is a
+    box of `OCCLUDER_HALF_EXTENTS` (+ `margin`) around its pose. Nothing here reaches a policy at
+    deployment.
+
+    Args:
+        xyz: (..., N, 3) point positions in the base (= world) frame, metres.
+        pose: (..., 7) the panel's centre (base frame, metres) and wxyz quaternion, as the dataset's
+            `annotation.occluder_pose`; an all-zero quaternion means no occluder (no point is on it).
+        margin: metres added to each half extent.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    pose = np.asarray(pose, dtype=np.float64)
+    if xyz.shape[-1] != 3 or pose.shape[-1] != 7 or xyz.shape[:-2] != pose.shape[:-1]:
+        raise ValueError(f"expected xyz (..., N, 3) and pose (..., 7) with the same leading axes; got "
+                         f"{xyz.shape} and {pose.shape}")
+    q = pose[..., 3:]
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    present = norm[..., 0] > 1e-9
+    w, x, y, z = np.moveaxis(q / np.where(norm > 1e-9, norm, 1.0), -1, 0)
+    # rotation matrix columns: the panel's normal, width and height axes in the base frame
+    rot = np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], -1),
+        np.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], -1),
+        np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -1)  # (..., 3, 3), rot[..., :, k] = axis k
+    local = np.einsum("...nj,...jk->...nk", xyz - pose[..., None, :3], rot)  # point coords along the axes
+    half = np.asarray(OCCLUDER_HALF_EXTENTS) + margin
+    inside = np.all(np.abs(local) <= half, axis=-1)
+    return inside & present[..., None]
 
 
 @dataclass

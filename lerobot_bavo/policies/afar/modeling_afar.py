@@ -160,6 +160,7 @@ class AfarPolicy(ManiFlowPolicy):
                 )
             use_rel = not missing
 
+        batch = self.training_batch(batch)
         pc, state = self._observation_tensors(batch)
         need_future = use_rel and cfg.use_future_evolution_loss
         context, aux = self.model.observation_context(pc, state, need_future=need_future)

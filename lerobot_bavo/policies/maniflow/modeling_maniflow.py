@@ -21,9 +21,13 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_bavo.features import unflatten_points
+from lerobot_bavo.features import TEACHER_OCCLUDER, TEACHER_VISIBLE, TEACHER_Z0, TEACHER_ZF, unflatten_points
+from lerobot_bavo.policies.augment import occluder_dropout
 
 from .configuration_maniflow import ManiFlowConfig
+
+# Teacher targets with one entry per cloud point: reordered with the cloud by `occluder_dropout`.
+POINT_ALIGNED_TEACHER_KEYS = (TEACHER_Z0, TEACHER_ZF, TEACHER_VISIBLE)
 
 # --------------------------------------------------------------------------------------------------------------
 # Observation encoder.
@@ -524,11 +528,27 @@ class ManiFlowPolicy(PreTrainedPolicy):
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
         self.invalidate_modulation_cache()  # an optimiser step on these weights follows
+        batch = self.training_batch(batch)
         pc, state = self._observation_tensors(batch)
         context, _ = self.model.observation_context(pc, state, need_future=False)
         loss, info = self.flow_loss(context, batch)
         info["loss"] = loss.item()
         return loss, info
+
+    def training_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The batch a training step reads: with `occluder_dropout` > 0 (training mode only), some samples' occluder
+        points moved behind the points the policy reads (`policies/augment.occluder_dropout`)."""
+        p = self.config.occluder_dropout
+        if not (self.training and p > 0 and self.config.uses_point_cloud):
+            return batch
+        if TEACHER_OCCLUDER not in batch:
+            raise KeyError(
+                f"`occluder_dropout` needs the per-point label '{TEACHER_OCCLUDER}' in the batch: make the training "
+                "view again with `python -m lerobot_bavo.datasets.views --view points` (base-frame clouds of a "
+                "dataset with `annotation.occluder_pose`), or set --policy.occluder_dropout=0."
+            )
+        keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
+        return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p)
 
     def flow_loss(self, context: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """ManiFlow's objective on a shared context (B, L, Dc) (the encoder runs once, with gradients).
