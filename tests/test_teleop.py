@@ -276,7 +276,7 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
 
 
 def start_server(root: Path, *extra: str) -> tuple[subprocess.Popen, str]:
-    """`python -m lerobot_bavo.teleop` on 127.0.0.1 and a free port; returns (process, url)."""
+    """`python -m lerobot_bavo.teleop` on 127.0.0.1 and a free port; returns (process, url with the run's token)."""
     env = dict(os.environ, SVT_LOG="1", PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
         [sys.executable, "-m", "lerobot_bavo.teleop", "--task", "cube_handoff", "--condition", "stage",
@@ -285,7 +285,7 @@ def start_server(root: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     lines = []
     for line in proc.stdout:
         lines.append(line)
-        m = re.search(r"serving (http://127\.0\.0\.1:\d+/)", line)
+        m = re.search(r"serving (http://127\.0\.0\.1:\d+/\?token=[\w-]+)", line)
         if m:
             return proc, m.group(1)
     raise RuntimeError("bavo-teleop did not start:\n" + "".join(lines))

@@ -11,6 +11,13 @@ thread at the env's 25 Hz whatever the browser's frame rate, and every tick's in
 Saved episodes go into a BAVO dataset with `bavo-collect`'s schema, writer and teacher cache,
 marked `annotation.source` = 1 (human); `--replay` re-drives a log without a browser and
 reproduces the episode bit for bit (and saves it into `--root` when given).
+
+Access: the server prints the page's address with a random token made at each start
+(http://127.0.0.1:8765/?token=...); open that address. Requests without the token, from a page on
+another site (Origin) or naming another host (Host: DNS rebinding) get HTTP 403 with the reason.
+Every message from the page is checked whole (a bad one is answered with an error, nothing else
+happens). When the page disconnects, held keys / gamepad / WebXR input is let go (the arms hold
+still), and a running episode pauses until a page connects again: no frame is recorded without one.
 """
 
 from __future__ import annotations
@@ -28,7 +35,9 @@ import sys
 from pathlib import Path
 
 from lerobot_bavo.features import ObservationSettings
+from lerobot_bavo.teleop.access import WILDCARD_ADDRESSES, AccessPolicy, new_token
 from lerobot_bavo.teleop.controls import CONTROLS_HELP
+from lerobot_bavo.teleop.protocol import MAX_MESSAGE_BYTES, InputMessage, MessageError, parse_message
 
 STATIC = Path(__file__).parent / "static"
 logger = logging.getLogger("bavo-teleop")
@@ -49,31 +58,68 @@ class _Client:
         self.ws = ws
         self.pending: bytes | None = None
         self.sending = False
+        self.bad_messages = 0
+
+
+OPEN_PREFIX = "/static/"  # the page's script: Host / Origin checks only; everything else needs the token too
+LOGGED_BAD_MESSAGES = 5  # per connection; the rest are counted (a broken page could send one per frame)
 
 
 class TeleopServer:
-    """The web front end of a `TeleopSession`."""
+    """The web front end of a `TeleopSession`.
 
-    def __init__(self, session):
+    Access: every request passes `access.AccessPolicy` (Host, Origin, and the run's token for the
+    page and the websocket) or gets HTTP 403 with the reason; `token` is made per run unless given,
+    and `url` (set once listening) is the page's address with it. Input: every websocket message is
+    checked whole by `protocol.parse_message` before the session sees it; a bad one is answered
+    `{"type": "error", "error": ...}` and the connection goes on. Disconnects: when the page whose
+    input is in effect goes away, that input is released (the arms hold still); when the last page
+    goes, a running episode pauses (`TeleopSession.operator_left`).
+    """
+
+    def __init__(self, session, token: str | None = None):
         self.session = session
+        self.token = token or new_token()
+        self.policy: AccessPolicy | None = None
+        self.url: str | None = None
         self.clients: set[_Client] = set()
+        self.controlling: _Client | None = None  # the page whose input was applied last
         self.last_frame: bytes | None = None
-        self.last_status: str | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
+        self._runner = None
 
     def app(self):
         from aiohttp import web
 
-        app = web.Application()
+        @web.middleware
+        async def guard(request, handler):
+            return await self._guard(request, handler)
+
+        app = web.Application(middlewares=[guard])
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._ws)
         app.router.add_static("/static", STATIC)
         return app
 
+    async def _guard(self, request, handler):
+        """Refuse (403, with the reason) a request that fails the access policy; see `access`."""
+        from aiohttp import web
+
+        if self.policy is None:
+            raise web.HTTPServiceUnavailable(text="bavo-teleop: starting\n")
+        reason = self.policy.refusal(request.headers.get("Host"), request.headers.get("Origin"),
+                                     request.query.get("token"), need_token=not request.path.startswith(OPEN_PREFIX))
+        if reason is not None:
+            logger.warning("refused %s %s from %s: %s", request.method, request.path[:100], request.remote, reason)
+            raise web.HTTPForbidden(text=f"bavo-teleop: refused: {reason}\n")
+        return await handler(request)
+
     async def _index(self, request):
         from aiohttp import web
 
-        return web.FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+        # no-referrer: the token in this page's address is not passed on to anything it loads
+        return web.FileResponse(STATIC / "index.html",
+                                headers={"Cache-Control": "no-store", "Referrer-Policy": "no-referrer"})
 
     # called from the simulation thread
     def publish(self, header: dict, images) -> None:
@@ -87,21 +133,25 @@ class TeleopServer:
         self.loop.call_soon_threadsafe(self._broadcast, payload)
 
     def _broadcast(self, payload) -> None:
-        if isinstance(payload, str):
-            self.last_status = payload
-        else:
+        if not isinstance(payload, str):
             self.last_frame = payload
         for c in list(self.clients):
             self._send(c, payload)
 
     def _send(self, client: _Client, payload) -> None:
-        if isinstance(payload, str):  # status messages are never skipped
-            asyncio.ensure_future(client.ws.send_str(payload))
+        if isinstance(payload, str):  # status and error messages are never skipped
+            asyncio.ensure_future(self._send_text(client, payload))
             return
         client.pending = payload
         if not client.sending:
             client.sending = True
             asyncio.ensure_future(self._drain(client))
+
+    async def _send_text(self, client: _Client, text: str) -> None:
+        try:
+            await client.ws.send_str(text)
+        except (ConnectionError, RuntimeError):  # the page went away meanwhile
+            self.clients.discard(client)
 
     async def _drain(self, client: _Client) -> None:
         try:
@@ -114,36 +164,64 @@ class TeleopServer:
             client.sending = False
 
     async def _ws(self, request):
-        from aiohttp import WSMsgType, web
+        from aiohttp import web
 
-        ws = web.WebSocketResponse(heartbeat=20, max_msg_size=1 << 20)
+        ws = web.WebSocketResponse(heartbeat=20, max_msg_size=MAX_MESSAGE_BYTES)
         await ws.prepare(request)
         client = _Client(ws)
         self.clients.add(client)
-        await ws.send_str(json.dumps({**self.session.status(), "help": CONTROLS_HELP}))
-        if self.last_frame is not None:
-            self._send(client, self.last_frame)
+        self.session.operator_joined()
         try:
+            await ws.send_str(json.dumps({**self.session.status(), "help": CONTROLS_HELP}))
+            if self.last_frame is not None:
+                self._send(client, self.last_frame)
             async for msg in ws:
-                if msg.type != WSMsgType.TEXT:
-                    continue
-                try:
-                    data = json.loads(msg.data)
-                except ValueError:
-                    continue
-                if data.get("type") == "input":
-                    try:
-                        self.session.input.update(data)
-                    except (TypeError, ValueError, AttributeError):
-                        logger.warning("ignored a malformed input message: %.200s", msg.data)
-                elif data.get("type") == "cmd" and data.get("cmd") in ("start", "stop", "save", "discard", "rerecord"):
-                    self.session.command(data["cmd"])
+                error = self._apply(client, msg)
+                if error is not None:
+                    await ws.send_str(json.dumps({"type": "error", "error": error}))
         finally:
-            self.clients.discard(client)
+            self._left(client)
         return ws
 
-    async def serve(self, host: str, port: int) -> None:
-        """Serve until SIGINT / SIGTERM, then stop the session (a save in progress completes)."""
+    def _apply(self, client: _Client, msg) -> str | None:
+        """Hand one websocket message to the session once it is known valid; else the error for the page."""
+        from aiohttp import WSMsgType
+
+        if msg.type == WSMsgType.BINARY:
+            error = "binary messages are not accepted (send JSON text)"
+        elif msg.type != WSMsgType.TEXT:
+            return None  # close / error frames: the loop ends by itself
+        else:
+            try:
+                parsed = parse_message(msg.data)
+            except MessageError as e:
+                error = str(e)
+            else:
+                if isinstance(parsed, InputMessage):
+                    self.session.input.update(parsed)
+                    self.controlling = client
+                else:
+                    self.session.command(parsed.cmd)
+                return None
+        client.bad_messages += 1
+        if client.bad_messages <= LOGGED_BAD_MESSAGES:
+            logger.warning("bad message from a page (answered, ignored): %s", error)
+        return error
+
+    def _left(self, client: _Client) -> None:
+        """A page disconnected: its input must not go on driving the robot."""
+        self.clients.discard(client)
+        if client.bad_messages > LOGGED_BAD_MESSAGES:
+            logger.warning("that page sent %d bad messages in all", client.bad_messages)
+        if not self.clients:
+            self.controlling = None
+            self.session.operator_left()  # releases the input and pauses a running episode
+        elif client is self.controlling:
+            self.controlling = None
+            self.session.input.release()
+
+    async def start(self, host: str, port: int) -> str:
+        """Start the session and listen on host:port (0: any free port); returns the page's URL."""
         from aiohttp import web
 
         self.loop = asyncio.get_running_loop()
@@ -151,24 +229,39 @@ class TeleopServer:
         await self.loop.run_in_executor(None, self.session.ready.wait)
         if self.session.error is not None:
             raise self.session.error
-        runner = web.AppRunner(self.app(), handle_signals=False)
+        self._runner = web.AppRunner(self.app(), handle_signals=False)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, host, port)
+        await site.start()  # OSError when the port is taken
+        bound_port = self._runner.addresses[0][1]
+        self.policy = AccessPolicy.for_bound(host, bound_port, self.token)
+        self.url = self.policy.url(host)
+        return self.url
+
+    async def stop(self) -> None:
+        """Close the pages, stop listening, stop the session (a save in progress completes)."""
+        for c in list(self.clients):
+            await c.ws.close()
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None
+        await self.loop.run_in_executor(None, self.session.close)
+
+    async def serve(self, host: str, port: int) -> None:
+        """Serve until SIGINT / SIGTERM, then stop the session (a save in progress completes)."""
+        self.loop = asyncio.get_running_loop()
         try:
-            await runner.setup()
-            site = web.TCPSite(runner, host, port)
-            await site.start()  # OSError when the port is taken
-            bound = runner.addresses[0]
-            print(f"bavo-teleop: serving http://{bound[0]}:{bound[1]}/ (dataset {self.session.root}); Ctrl+C stops",
-                  flush=True)
+            url = await self.start(host, port)
+            wildcard = host.strip("[]") in WILDCARD_ADDRESSES
+            where = f" (listening on {host}: from another machine, use its address)" if wildcard else ""
+            print(f"bavo-teleop: serving {url}{where} (dataset {self.session.root}); Ctrl+C stops", flush=True)
             stop = asyncio.Event()
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self.loop.add_signal_handler(sig, stop.set)
             await stop.wait()
         finally:
             print("bavo-teleop: stopping (saved episodes are kept)", flush=True)
-            for c in list(self.clients):
-                await c.ws.close()
-            await runner.cleanup()
-            await self.loop.run_in_executor(None, self.session.close)
+            await self.stop()
 
 
 # ====================================================================== CLI
@@ -186,7 +279,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--condition", default="stage", choices=tuple(CONDITIONS), help="visibility condition")
     p.add_argument("--repo-id", help="<user>/<name> of the dataset, e.g. me/bavo_human_cube_handoff")
     p.add_argument("--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: this machine only)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default: this machine only; 0.0.0.0: all interfaces, still with "
+                        "the token and the Host / Origin checks)")
     p.add_argument("--port", type=int, default=8765, help="port (0: any free port)")
     p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (clear of eval seeds)")
     p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")

@@ -28,6 +28,7 @@ from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.teleop.controls import TeleopController, TickInput
+from lerobot_bavo.teleop.protocol import MAX_KEYS, UNSET, InputMessage, parse_input
 
 logger = logging.getLogger("bavo-teleop")
 
@@ -53,6 +54,12 @@ class HumanAgent:
         next_input: called once per control tick; returns that tick's `TickInput` (live: waits
             for the tick's deadline; replay: the next logged input). May raise `EpisodeAborted`.
         on_frame: called with (obs, info, agent) before each tick, to show the operator the frame.
+        on_error: called with a message when mapping a tick's input to an action failed.
+
+    A tick whose input the controller fails on (a bug, or an input the checks let through) holds
+    the arms at the previous tick's targets instead of ending the episode: the operator keeps the
+    episode recorded so far. The fallback is deterministic, so a replay of the log (which has the
+    tick's input) takes the same path and stays bit for bit.
 
     Recovery annotation (`annotation.occlusion_active`): after an occlusion event starts, frames
     whose action moves the camera arm are marked as recovery, until the operator next moves a
@@ -61,11 +68,13 @@ class HumanAgent:
 
     source = "human"
 
-    def __init__(self, env, next_input, on_frame=None):
+    def __init__(self, env, next_input, on_frame=None, on_error=None):
         self.env = env.unwrapped
         self.next_input = next_input
         self.on_frame = on_frame
+        self.on_error = on_error
         self.inputs: list[dict] = []
+        self.failed_ticks: list[int] = []
 
     @property
     def recovering(self) -> bool:
@@ -78,6 +87,7 @@ class HumanAgent:
         self.stop_requested = False
         self.recoveries: list[dict] = []
         self.inputs = []
+        self.failed_ticks = []
         self.last_seq = 0
         self._open_event: int | None = None
         self._answered = -1
@@ -89,7 +99,18 @@ class HumanAgent:
         self.last_seq = inp.seq
         self.inputs.append(inp.to_json())
         before = self.controller.action()
-        action = self.controller.step(inp)
+        try:
+            action = self.controller.step(inp)
+        except Exception as e:  # noqa: BLE001 - any failure here must not end the episode (see the class doc)
+            tick = len(self.inputs) - 1
+            first = not self.failed_ticks or self.failed_ticks[-1] != tick - 1  # report a run of failures once
+            self.failed_ticks.append(tick)
+            action = before
+            if first:
+                logger.exception("tick %d: the controller failed on this input; the arms hold still", tick)
+                if self.on_error is not None:
+                    self.on_error(f"tick {tick}: the input could not be applied ({type(e).__name__}: {e}); "
+                                  "the arms hold still while it lasts")
         occ = (info or {}).get("occlusion")
         if occ is not None and occ.get("event_started"):
             self._open_event = int(occ["event"]["index"])
@@ -173,7 +194,12 @@ class LiveInput:
 
     The page sends the keys it holds, edge events (taps), the gamepad axes and WebXR poses; the
     control loop takes one snapshot per tick at a fixed 25 Hz deadline, whatever the page's rate.
+    Only validated messages (`protocol.parse_input`) are applied, and taps waiting for the next
+    tick are capped at MAX_PENDING_TAPS (the oldest are dropped): no one can make the state, or
+    the per-tick log entry it becomes, large.
     """
+
+    MAX_PENDING_TAPS = MAX_KEYS
 
     def __init__(self):
         self._lock = threading.Lock()
@@ -184,16 +210,30 @@ class LiveInput:
         self.seq = 0
         self.stop = False
 
-    def update(self, msg: dict) -> None:
+    def update(self, msg: InputMessage | dict) -> None:
+        """Apply one input message (a dict is validated first: `MessageError` if it is not valid)."""
+        if not isinstance(msg, InputMessage):
+            msg = parse_input(msg)
         with self._lock:
-            if "keys" in msg:
-                self.keys = {str(k).lower() for k in msg["keys"]}
-            self.taps.extend(str(t).lower() for t in msg.get("taps", ()))
-            if "pad" in msg:
-                self.pad = None if msg["pad"] is None else tuple(float(v) for v in msg["pad"][:4])
-            if "xr" in msg:
-                self.xr = msg["xr"] if isinstance(msg["xr"], dict) else None
-            self.seq = max(self.seq, int(msg.get("seq", 0)))
+            if msg.keys is not UNSET:
+                self.keys = set(msg.keys)
+            if msg.taps:
+                self.taps = (self.taps + list(msg.taps))[-self.MAX_PENDING_TAPS:]
+            if msg.pad is not UNSET:
+                self.pad = msg.pad
+            if msg.xr is not UNSET:
+                self.xr = msg.xr
+            self.seq = max(self.seq, msg.seq)
+
+    def release(self) -> None:
+        """Let go of everything held (keys, gamepad, WebXR) and pending taps: the arms hold still.
+
+        Called when the operator's page disconnects, so no input outlives the client that sent it.
+        The sequence number restarts too: the next page counts from 1 (it only measures latency).
+        """
+        with self._lock:
+            self.taps, self.seq = [], 0
+            self.keys, self.pad, self.xr = set(), None, None
 
     def clear(self) -> None:
         with self._lock:
@@ -316,7 +356,17 @@ class TeleopSession:
     """Owns the recorder, the dataset writer and the control loop; runs in its own thread (`start()`).
 
     Commands (`command(name)`): start, stop, save, discard, rerecord, quit. `publish(header, jpegs)`
-    is called with every frame and status change.
+    is called with every frame and status change, and with `{"type": "error", ...}` (no images)
+    when something failed that the operator should know about.
+
+    The web server calls `operator_left()` when the last page disconnects: held input is released
+    and a running episode pauses (no tick is simulated or recorded) until `operator_joined()`. So
+    no frame is ever recorded from input whose sender is gone. Without a server (tests, scripts),
+    the operator counts as present.
+
+    The loop survives failures: a failing tick holds the arms still (`HumanAgent`), a failing
+    command (a save, say) is logged and reported, and an episode that ended but is not saved stays
+    pending, so the operator can save it again or discard it.
     """
 
     def __init__(self, cfg: TeleopConfig, publish=None):
@@ -330,6 +380,9 @@ class TeleopSession:
         self.saved: list[dict] = []
         self.error: BaseException | None = None
         self.ready = threading.Event()
+        self.operator_present = threading.Event()
+        self.operator_present.set()
+        self._frame_failed = False
         self._thread: threading.Thread | None = None
         self._tick_deadline = 0.0
         self._tick_times: list[float] = []
@@ -342,6 +395,28 @@ class TeleopSession:
 
     def command(self, name: str) -> None:
         self.commands.put(name)
+
+    @property
+    def agent(self) -> HumanAgent | None:
+        """The operator's agent of the episode running (or last run); None before the first."""
+        return getattr(self, "_agent", None)
+
+    def is_alive(self) -> bool:
+        """Whether the simulation thread runs (it ends only at `close()` or when opening failed)."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def operator_left(self) -> None:
+        """No page is connected any more: let go of the held input and pause a running episode."""
+        self.input.release()
+        self.operator_present.clear()
+
+    def operator_joined(self) -> None:
+        """A page is connected: a paused episode goes on."""
+        self.operator_present.set()
+
+    def report_error(self, text: str) -> None:
+        """Tell the pages that something failed (`{"type": "error", "error": text}`)."""
+        self.publish({"type": "error", "error": text}, None)
 
     def close(self, timeout: float = 600.0) -> None:
         """Stop the loop: a running episode is dropped, a save in progress completes; then finish the dataset."""
@@ -384,24 +459,38 @@ class TeleopSession:
             cmd = self.commands.get()
             if cmd == "quit":
                 return
-            if cmd in ("start", "rerecord"):
-                if self.pending is not None and cmd == "start":
-                    self.message = "save (Enter) or discard (Backspace) the last episode first"
-                    self._status()
-                    continue
-                if cmd == "rerecord" and self.pending is not None:
-                    self.pending = None
-                elif cmd == "start" and self.state == "idle" and self._last_seed_done:
-                    self.next_seed += 1
-                if self._episode(self.next_seed) == "quit":
+            try:
+                if self._handle(cmd) == "quit":
                     return
-            elif cmd == "save" and self.pending is not None:
-                self._save()
-            elif cmd == "discard" and self.pending is not None:
+            except Exception as e:  # noqa: BLE001 - the loop must go on (see the class doc)
+                logger.exception("command %r failed", cmd)
+                kept = self.pending is not None
+                self.state = "ended" if kept else "idle"
+                self.message = (f"{cmd} failed ({type(e).__name__}: {e})"
+                                + ("; the episode is kept: Enter saves it, Backspace discards it" if kept else ""))
+                self.report_error(self.message)
+                self._status()
+
+    def _handle(self, cmd: str) -> str | None:
+        """One command between episodes; "quit" when the server is stopping during an episode."""
+        if cmd in ("start", "rerecord"):
+            if self.pending is not None and cmd == "start":
+                self.message = "save (Enter) or discard (Backspace) the last episode first"
+                self._status()
+                return None
+            if cmd == "rerecord" and self.pending is not None:
                 self.pending = None
-                self._last_seed_done = True
-                self.state, self.message = "idle", "episode discarded; N starts the next seed"
-                self._show_reset(self.next_seed + 1)
+            elif cmd == "start" and self.state == "idle" and self._last_seed_done:
+                self.next_seed += 1
+            return self._episode(self.next_seed)
+        if cmd == "save" and self.pending is not None:
+            self._save()
+        elif cmd == "discard" and self.pending is not None:
+            self.pending = None
+            self._last_seed_done = True
+            self.state, self.message = "idle", "episode discarded; N starts the next seed"
+            self._show_reset(self.next_seed + 1)
+        return None
 
     _last_seed_done = False
 
@@ -410,8 +499,9 @@ class TeleopSession:
         self.state, self.message = "running", f"episode seed {seed}"
         self._tick_deadline = time.perf_counter()
         self._tick_times = []
-        agent = HumanAgent(self.recorder.env, self._next_input, self._on_frame)
+        agent = HumanAgent(self.recorder.env, self._next_input, self._on_tick_frame, on_error=self.report_error)
         self._agent = agent
+        self._frame_failed = False
         t0 = time.time()
         try:
             record = self.recorder.record(seed, agent=agent)
@@ -441,7 +531,11 @@ class TeleopSession:
     _after_end_save = False
 
     def _next_input(self) -> TickInput:
-        """Wait for this tick's deadline (fixed 25 Hz), handle page commands, return the input snapshot."""
+        """Wait for this tick's deadline (fixed 25 Hz), handle page commands, return the input snapshot.
+
+        With no page connected, first wait for one (`_pause`): the tick is taken when someone can see it.
+        """
+        stop = self._pause() if not self.operator_present.is_set() else False
         now = time.perf_counter()
         if now < self._tick_deadline:
             time.sleep(self._tick_deadline - now)
@@ -449,12 +543,21 @@ class TeleopSession:
             self.overruns += now - self._tick_deadline > 0.005
         self._tick_times.append(time.perf_counter())
         self._tick_deadline = max(self._tick_deadline + C.CONTROL_DT, time.perf_counter() - C.CONTROL_DT)
+        stop = self._episode_commands() or stop
+        inp = self.input.snapshot()
+        if stop:
+            inp.stop = True
+        return inp
+
+    def _episode_commands(self) -> bool:
+        """Commands that came in during the episode: True to end it at this tick (stop, or save);
+        raises `EpisodeAborted` for discard, rerecord and quit."""
         stop = False
         while True:
             try:
                 cmd = self.commands.get_nowait()
             except queue.Empty:
-                break
+                return stop
             if cmd in ("discard", "rerecord", "quit"):
                 raise EpisodeAborted(cmd)
             if cmd == "stop":
@@ -462,10 +565,36 @@ class TeleopSession:
             elif cmd == "save":  # Enter while running: end the episode here and save it
                 stop = True
                 self._after_end_save = True
-        inp = self.input.snapshot()
-        if stop:
-            inp.stop = True
-        return inp
+
+    def _pause(self) -> bool:
+        """Hold the running episode, simulating and recording nothing, until a page connects again.
+
+        Commands are still handled (the server's quit, above all); returns whether one asked to
+        end the episode. The 25 Hz clock restarts afterwards, so no ticks are made up in a burst.
+        """
+        state, message = self.state, self.message
+        self.state, self.message = "paused", "paused: no page is connected (open the page again to go on)"
+        logger.info("no page connected: episode paused")
+        self._status()
+        stop = False
+        while not self.operator_present.wait(0.05):
+            stop = self._episode_commands() or stop
+        self.state, self.message = state, message
+        logger.info("a page connected: episode resumed")
+        self._status()
+        self._tick_deadline = time.perf_counter()
+        self._tick_times = []
+        return stop
+
+    def _on_tick_frame(self, obs, info, agent) -> None:
+        """`_on_frame` during an episode: a frame that cannot be shown must not end the recording."""
+        try:
+            self._on_frame(obs, info, agent)
+        except Exception as e:  # noqa: BLE001
+            if not self._frame_failed:  # once per episode: the same failure would repeat every tick
+                logger.exception("showing the frame failed (the episode goes on)")
+                self.report_error(f"showing the frame failed ({type(e).__name__}: {e}); the episode goes on")
+            self._frame_failed = True
 
     def _save(self) -> None:
         record, inputs, _ = self.pending

@@ -8,8 +8,13 @@ const TAPS = new Set(["1", "2", "3", " ", "l"]);
 const COMMANDS = { n: "start", enter: "save", backspace: "discard", z: "rerecord", x: "stop" };
 
 const bavo = (window.bavo = {
-  connected: false, status: {}, frames: 0, latencies: [], lastHeader: null,
+  connected: false, status: {}, frames: 0, latencies: [], lastHeader: null, errors: [],
 });
+// The run's token, from the address bavo-teleop printed; the server refuses the websocket without it.
+const TOKEN = new URLSearchParams(location.search).get("token") || "";
+const MAX_PAD_BUTTONS = 17; // the standard mapping's buttons: the server accepts pad0..pad16
+// what the server accepts for axes and triggers (a driver's stray value would get the whole message refused)
+const clamp = (v, lo, hi) => (Number.isFinite(v) ? Math.min(hi, Math.max(lo, v)) : 0);
 const held = new Set();
 const padHeld = new Set();
 let pad = null;
@@ -26,9 +31,8 @@ function send(obj) {
 function sendInput(taps, track) {
   seq += 1;
   if (track && bavo.status.state === "running") pending.set(seq, performance.now());
-  const msg = { type: "input", seq, keys: [...held, ...padHeld], taps };
-  if (pad !== null) msg.pad = pad;
-  send(msg);
+  // pad is always sent (null too): a gamepad that went away must not leave its last axes held
+  send({ type: "input", seq, keys: [...held, ...padHeld], taps, pad });
 }
 
 function command(cmd) { send({ type: "cmd", cmd }); }
@@ -66,10 +70,10 @@ function pollGamepad() {
   const pads = navigator.getGamepads ? navigator.getGamepads() : [];
   const gp = pads && [...pads].find((p) => p);
   if (!gp) { if (pad !== null) { pad = null; padHeld.clear(); sendInput([], false); } return; }
-  const axes = gp.axes.slice(0, 4).map((a) => Math.round(a * 100) / 100);
+  const axes = gp.axes.slice(0, 4).map((a) => Math.round(clamp(a, -1, 1) * 100) / 100);
   const taps = [];
   const now = new Set();
-  gp.buttons.forEach((b, i) => { if (b.pressed) now.add("pad" + i); });
+  gp.buttons.forEach((b, i) => { if (b.pressed && i < MAX_PAD_BUTTONS) now.add("pad" + i); });
   for (const b of now) if (!padHeld.has(b)) taps.push(b);
   const changed = taps.length || now.size !== padHeld.size || pad === null || axes.some((a, i) => a !== pad[i]);
   padHeld.clear(); now.forEach((b) => padHeld.add(b));
@@ -134,7 +138,7 @@ function onXRFrame(t, frame) {
     if (!src.gripSpace || (src.handedness !== "left" && src.handedness !== "right")) continue;
     const pose = frame.getPose(src.gripSpace, xrSpace);
     if (pose) xr[src.handedness] = poseArray(pose);
-    if (src.gamepad && src.gamepad.buttons.length) xr[src.handedness + "_trigger"] = src.gamepad.buttons[0].value;
+    if (src.gamepad && src.gamepad.buttons.length) xr[src.handedness + "_trigger"] = clamp(src.gamepad.buttons[0].value, 0, 1);
   }
   seq += 1;
   send({ type: "input", seq, keys: [], taps: [], xr });
@@ -236,7 +240,14 @@ async function drawLatest() {
 
 function onMessage(ev) {
   if (typeof ev.data === "string") {
-    showStatus(JSON.parse(ev.data));
+    const m = JSON.parse(ev.data);
+    if (m.type === "error") { // a message of ours the server refused, or a failure in the simulation
+      bavo.errors.push(m.error);
+      console.warn("bavo-teleop:", m.error);
+      $("msg").textContent = "error: " + m.error;
+      return;
+    }
+    showStatus(m);
     if (bavo.status.state !== "running") pending.clear();
     return;
   }
@@ -251,12 +262,14 @@ function onMessage(ev) {
 }
 
 function connect() {
-  ws = new WebSocket(`ws://${location.host}/ws`);
+  ws = new WebSocket(`ws://${location.host}/ws?token=${encodeURIComponent(TOKEN)}`);
   ws.binaryType = "arraybuffer";
   ws.onopen = () => { bavo.connected = true; };
   ws.onclose = () => {
     bavo.connected = false;
-    showStatus({ state: "disconnected", message: "server stopped (saved episodes are kept); reload to reconnect" });
+    showStatus({ state: "disconnected", message: bavo.frames === 0 && !TOKEN
+      ? "refused: open the address bavo-teleop printed (it ends in ?token=...)"
+      : "disconnected (server stopped, or refused this page; saved episodes are kept): reload to reconnect" });
   };
   ws.onmessage = onMessage;
 }
