@@ -29,6 +29,7 @@ import math
 from pathlib import Path
 
 from lerobot_bavo.features import OBS_ENV_STATE, OBS_IMAGE, OBS_POINT_CLOUD, POINT_CHANNELS, POINT_FRAMES
+from lerobot_bavo.limits import bound_problems
 
 # Module prefixes whose processor step classes may be imported by dotted path.
 TRUSTED_CLASS_PREFIXES = ("lerobot.processor.", "lerobot_bavo.")
@@ -57,11 +58,31 @@ class CheckpointMismatchError(ValueError):
     """A checkpoint does not fit the environment it is asked to run in, or its weights are incomplete."""
 
 
+# The largest JSON file of a checkpoint read (config.json, processor files, bavo_inputs.json, train_config.json):
+# real ones are a few KB; reading a bigger one whole would only cost memory.
+MAX_JSON_BYTES = 1 << 20
+
+
+def _read_text(path: Path) -> str:
+    """The UTF-8 text of a small checkpoint file; CheckpointMismatchError naming it when it is over
+    `MAX_JSON_BYTES` or not UTF-8."""
+    with open(path, "rb") as fh:
+        data = fh.read(MAX_JSON_BYTES + 1)
+    if len(data) > MAX_JSON_BYTES:
+        raise CheckpointMismatchError(f"{path} is over {MAX_JSON_BYTES} bytes; a checkpoint's JSON files are a few KB")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise CheckpointMismatchError(f"{path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
+
+
 def _read_json(path: Path) -> dict:
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(_read_text(path))
     except json.JSONDecodeError as e:
         raise CheckpointMismatchError(f"{path} is not valid JSON ({e})") from e
+    except RecursionError:
+        raise CheckpointMismatchError(f"{path} is nested too deeply to be a checkpoint file") from None
     if not isinstance(data, dict):
         raise CheckpointMismatchError(f"{path} must hold a JSON object, got {type(data).__name__}")
     return data
@@ -241,6 +262,9 @@ def env_settings(path: str | Path) -> dict:
             raise CheckpointMismatchError(f"{file}: observation.images.active shape {shape} is not CHW / HWC RGB")
         out["image_height"], out["image_width"] = (shape[1], shape[2]) if shape[0] == 3 else (shape[0], shape[1])
     out["environment_state"] = OBS_ENV_STATE in inputs
+    problems = bound_problems(out)
+    if problems:
+        raise CheckpointMismatchError(f"{file} asks the env for observations out of bounds: " + "; ".join(problems))
     return out
 
 
@@ -271,8 +295,8 @@ def recorded_point_frame(path: str | Path) -> str | None:
     own = Path(path) / INPUTS_RECORD
     if own.is_file():
         try:
-            frame = json.loads(own.read_text())["point_frame"]
-        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as exc:
+            frame = json.loads(_read_text(own))["point_frame"]
+        except (json.JSONDecodeError, RecursionError, KeyError, TypeError) as exc:
             raise CheckpointMismatchError(f"{own} is not a valid inputs record ({exc!r}); expected "
                                           '{"point_frame": "base"} or {"point_frame": "camera"}') from exc
         if frame not in POINT_FRAMES:
@@ -282,8 +306,8 @@ def recorded_point_frame(path: str | Path) -> str | None:
     if not file.is_file():
         return None
     try:
-        train = json.loads(file.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
+        train = json.loads(_read_text(file))
+    except (json.JSONDecodeError, RecursionError, CheckpointMismatchError):
         return None
     env = train.get("env") if isinstance(train, dict) else None
     if isinstance(env, dict) and env.get("type") == "bavo" and env.get("point_frame") in POINT_FRAMES:
@@ -316,6 +340,46 @@ def recorded_point_frame(path: str | Path) -> str | None:
 def mismatches(recorded: dict, actual: dict) -> list[str]:
     """'key: checkpoint X, env Y' for every recorded setting the env does not have."""
     return [f"{k}: checkpoint {v!r}, env {actual.get(k)!r}" for k, v in recorded.items() if actual.get(k) != v]
+
+
+def load_policy_config(path: str | Path):
+    """The checkpoint's `PreTrainedConfig` (LeRobot's reader, so every config's own checks and bounds run:
+    `lerobot_bavo.limits`); CheckpointMismatchError naming config.json and the cause otherwise."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    import lerobot_bavo.policies  # noqa: F401  (registers maniflow / afar)
+
+    path = Path(path)
+    _read_json(path / "config.json")  # size, encoding and JSON first, with their own messages
+    try:
+        return PreTrainedConfig.from_pretrained(path)
+    except Exception as e:  # draccus reports an unknown policy type as a bare "invalid choice", and a
+        # config's own check (e.g. n_action_steps out of range) only in the chain below its wrapper error
+        cause = e
+        while cause.__cause__ is not None or cause.__context__ is not None:
+            cause = cause.__cause__ or cause.__context__
+        detail = f"{e}" if cause is e else f"{e} (because: {cause})"
+        raise CheckpointMismatchError(f"{path / 'config.json'} cannot be read as a LeRobot policy config "
+                                      f"(is its 'type' a registered policy, are its values valid?): {detail}") from e
+
+
+def check_tensor_files(path: str | Path) -> None:
+    """Raise CheckpointMismatchError naming `model.safetensors` (or a processor's state file) when it is missing,
+    truncated or not a safetensors file. Why: LeRobot's loader fails on those with a bare `SafetensorError`
+    traceback ("incomplete metadata, file not fully covered" for a cut-off download). Reads headers only."""
+    from safetensors import safe_open
+
+    path = Path(path)
+    weights = path / "model.safetensors"
+    if not weights.is_file():
+        raise CheckpointMismatchError(f"{path} has no model.safetensors (the policy's weights)")
+    for file in [weights, *sorted(p for p in path.glob("*.safetensors") if p != weights)]:
+        try:
+            with safe_open(str(file), framework="pt") as f:
+                list(f.keys())
+        except Exception as e:  # SafetensorError, OSError
+            raise CheckpointMismatchError(f"{file} is truncated or not a safetensors file ({e}); copy or download "
+                                          "the checkpoint again") from None
 
 
 def check_weights_complete(policy, path: str | Path) -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from lerobot_bavo.limits import bound_problems
 from lerobot_bavo.sim import constants as C
 
 # ------------------------------------------------------------------ raw env observation keys
@@ -81,8 +82,9 @@ class ObservationSettings:
     """What the env observes, and so what fixes a dataset's schema. Defaults follow DESIGN.md.
 
     Args:
-        image_height, image_width: active-camera image size in pixels (>= 16 each).
-        n_points: points per cloud N (= teacher queries N_q; >= 2, relations need pairs).
+        image_height, image_width: active-camera image size in pixels (16 to `limits.MAX_IMAGE_SIDE` each).
+        n_points: points per cloud N (= teacher queries N_q; >= 2, relations need pairs; at most
+            `limits.MAX_POINTS`).
         point_frame: frame of the point-cloud xyz, one of `POINT_FRAMES`.
         fovy: active camera vertical field of view, degrees (for the intrinsics).
     """
@@ -100,6 +102,10 @@ class ObservationSettings:
             raise ValueError(f"n_points must be >= 2 (relations need pairs), got {self.n_points}")
         if self.point_frame not in POINT_FRAMES:
             raise ValueError(f"unknown point_frame {self.point_frame!r}; expected one of {', '.join(POINT_FRAMES)}")
+        problems = bound_problems({"image_height": self.image_height, "image_width": self.image_width,
+                                   "n_points": self.n_points})  # upper bounds: `lerobot_bavo.limits`
+        if problems:
+            raise ValueError("observation settings out of bounds: " + "; ".join(problems))
 
     def to_dict(self) -> dict:
         return asdict(self)

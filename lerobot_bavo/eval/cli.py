@@ -228,7 +228,13 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     at `ray_address`, or on a private local Ray with `workers` CPUs)."""
     from tqdm import tqdm
 
-    from lerobot_bavo.checkpoints import CheckpointMismatchError, check_processor_steps, checkpoint_digest
+    from lerobot_bavo.checkpoints import (
+        CheckpointMismatchError,
+        check_processor_steps,
+        check_tensor_files,
+        checkpoint_digest,
+        load_policy_config,
+    )
     from lerobot_bavo.envs.conditions import CONDITIONS
     from lerobot_bavo.envs.tasks import TASKS
     from lerobot_bavo.eval.rollout import EXPERT_POLICIES
@@ -254,8 +260,11 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
         policy_id = settings["policy"] = policy
     else:
         policy_id = settings["policy"] = str(Path(policy).resolve())
-        try:  # refuse untrusted processor steps and policy types here, before any worker imports them
+        try:  # refuse untrusted processor steps and policy types here, before any worker imports them; then
+            # configs out of bounds (`lerobot_bavo.limits`) and cut-off weights, before any env or model is built
             check_processor_steps(policy, trust_remote_code=trust_remote_code)
+            load_policy_config(policy)
+            check_tensor_files(policy)
         except (ValueError, CheckpointMismatchError) as e:
             raise SystemExit(f"bavo-eval: {e}") from None
         settings["checkpoint_sha256"] = checkpoint_digest(policy)

@@ -44,14 +44,15 @@ class LeRobotPolicyAgent:
 
     def __init__(self, path: str | Path, env, device: str = "cpu", trust_remote_code: bool = False):
         import torch
-        from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import make_policy, make_pre_post_processors
 
         from lerobot_bavo.checkpoints import (
             CheckpointMismatchError,
             check_processor_steps,
+            check_tensor_files,
             check_weights_complete,
             env_settings,
+            load_policy_config,
             mismatches,
         )
         from lerobot_bavo import register_lerobot_types
@@ -72,16 +73,8 @@ class LeRobotPolicyAgent:
             raise CheckpointMismatchError(f"the checkpoint at {path} was trained on other observations than this "
                                           "env gives: " + "; ".join(wrong))
         self._torch = torch
-        try:
-            cfg = PreTrainedConfig.from_pretrained(path)
-        except Exception as e:  # draccus reports an unknown policy type as a bare "invalid choice", and a
-            # config's own check (e.g. n_action_steps out of range) only in the chain below its wrapper error
-            cause = e
-            while cause.__cause__ is not None or cause.__context__ is not None:
-                cause = cause.__cause__ or cause.__context__
-            detail = f"{e}" if cause is e else f"{e} (because: {cause})"
-            raise CheckpointMismatchError(f"{path / 'config.json'} cannot be read as a LeRobot policy config "
-                                          f"(is its 'type' a registered policy, are its values valid?): {detail}") from e
+        cfg = load_policy_config(path)  # the config's own checks and size bounds
+        check_tensor_files(path)  # a truncated model.safetensors: an error naming it, not a SafetensorError
         cfg.pretrained_path = path
         cfg.device = device
         env_cfg = BavoEnvConfig(task=env.task.name, condition=env.condition, image_height=s.image_height,

@@ -91,6 +91,9 @@ class AfarConfig(ManiFlowConfig):
         for name, value in AFAR_PRESETS[self.preset].items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
+        from lerobot_bavo.limits import check_config_bounds  # A-FAR's sizes, now filled from the preset
+
+        check_config_bounds(self)
         if self.wqf_hidden_dim % self.wqf_num_heads != 0:
             raise ValueError(
                 f"`wqf_hidden_dim` ({self.wqf_hidden_dim}) must be divisible by `wqf_num_heads` "

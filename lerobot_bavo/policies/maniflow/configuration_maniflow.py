@@ -244,6 +244,9 @@ class ManiFlowConfig(PreTrainedConfig):
         for name in ("points_per_step",):  # fields newer presets set; older presets mean "all"
             if getattr(self, name) is None:
                 setattr(self, name, 0)
+        from lerobot_bavo.limits import check_config_bounds  # sizes from a checkpoint's config.json, before any build
+
+        check_config_bounds(self)
         self.point_encoder_hidden_dims = tuple(int(d) for d in self.point_encoder_hidden_dims)
         if self.points_per_step < 0:
             raise ValueError(f"`points_per_step` must be >= 0 (0 = all points). Got {self.points_per_step}.")

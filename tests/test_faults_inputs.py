@@ -1,0 +1,152 @@
+"""Hostile inputs, second round (issue 29, items 4-7): checkpoints that ask for absurd sizes or carry cut-off
+weights, the viewer's network exposure, grid files built to exhaust memory, and results / datasets left
+half-written. Each test reproduces the fault, checks the refusal names the problem, and that nothing finished
+was lost."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from pathlib import Path
+
+import pytest
+
+from test_faults import _copy, _save_checkpoint, _small_env
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    return _save_checkpoint(tmp_path_factory.mktemp("ckpt") / "pretrained_model")
+
+
+def _edited(checkpoint: Path, dst: Path, **changes) -> Path:
+    """A copy of `checkpoint` whose config.json has `changes` applied (a value None deletes the key)."""
+    out = _copy(checkpoint, dst)
+    config = json.loads((out / "config.json").read_text())
+    config.update(changes)
+    (out / "config.json").write_text(json.dumps(config))
+    return out
+
+
+def _finished_run(out: Path) -> dict[str, bytes]:
+    """An output folder holding a finished earlier run (what a refusal must leave untouched): name -> bytes."""
+    out.mkdir(parents=True, exist_ok=True)
+    record = {"task": "cube_handoff", "condition": "clean", "seed": 1000, "success": True, "progress": 5}
+    (out / "episodes.jsonl").write_text(json.dumps(record) + "\n")
+    (out / "results.json").write_text(json.dumps({"cells": {"cube_handoff/clean": {"n_episodes": 1}}}))
+    (out / "results.md").write_text("| table |\n")
+    return {p.name: p.read_bytes() for p in out.iterdir()}
+
+
+# ----------------------------------------------------------------------------- 4. checkpoint sizes and weights
+@pytest.mark.parametrize("field, value, message", [
+    ("num_inference_steps", 1_000_000_000, "`num_inference_steps` must be in [1, 1000], got 1000000000"),
+    ("dit_hidden_dim", -8, "`dit_hidden_dim` must be in [1, 4096], got -8"),
+    ("horizon", 10**7, "`horizon` must be in [1, 1000]"),
+    ("n_obs_steps", 5000, "`n_obs_steps` must be in [1, 32]"),
+    ("dit_num_layers", 10**6, "`dit_num_layers` must be in [1, 64]"),
+    ("dit_num_heads", 0, "`dit_num_heads` must be in [1, 64], got 0"),
+    ("point_encoder_hidden_dims", [16, 10**6], "`point_encoder_hidden_dims` must be in [1, 4096], got 1000000"),
+    ("points_per_step", 3_000_000, "`points_per_step` must be in [0, 16384]"),
+])
+def test_a_checkpoint_asking_for_absurd_sizes_is_refused_before_anything_is_built(checkpoint, tmp_path, field, value,
+                                                                                   message):
+    """Before: num_inference_steps 1e9 hung bavo-eval past 6 GB (the sampler schedule is precomputed), a negative
+    width failed deep in torch. Now the config's own check refuses it, in bavo-eval's main process, in
+    milliseconds, naming config.json, the field and the bound; an earlier run in the output folder is untouched."""
+    from lerobot_bavo.checkpoints import CheckpointMismatchError
+    from lerobot_bavo.eval.cli import evaluate
+    from lerobot_bavo.eval.rollout import LeRobotPolicyAgent
+
+    bad = _edited(checkpoint, tmp_path / "bad", **{field: value})
+    out = tmp_path / "eval"
+    before = _finished_run(out)
+    t0 = time.perf_counter()
+    with pytest.raises(SystemExit) as exc:
+        evaluate(str(bad), ["cube_handoff"], ["clean"], 1, 1000, out)
+    assert time.perf_counter() - t0 < 30
+    assert "config.json" in str(exc.value) and message in str(exc.value)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing finished lost, nothing started
+    # the agent (bavo-demo, a worker) refuses it the same way
+    with _small_env() as env, pytest.raises(CheckpointMismatchError, match=re.escape(message)):
+        LeRobotPolicyAgent(bad, env)
+
+
+def test_size_bounds_fit_the_paper_preset_and_name_the_limit():
+    from lerobot.configs import FeatureType, PolicyFeature
+
+    from lerobot_bavo.limits import MAX_STACK_SIZE, bound_problems
+    from lerobot_bavo.policies import AfarConfig, ManiFlowConfig
+
+    for preset in ("paper", "cpu", "cpu_fast"):  # every shipped size is inside the bounds
+        ManiFlowConfig(preset=preset, device="cpu")
+        AfarConfig(preset=preset, device="cpu")
+    ManiFlowConfig(preset="cpu", device="cpu", num_inference_steps=1000, dit_hidden_dim=1536, dit_num_layers=24,
+                   dit_num_heads=16)  # 2x the paper's width and depth: still allowed
+    with pytest.raises(ValueError, match=r"`dit_num_layers` x `dit_hidden_dim`\^2 = 64 x 4096\^2 exceeds"):
+        ManiFlowConfig(preset="cpu", device="cpu", dit_hidden_dim=4096, dit_num_layers=64, dit_num_heads=8)
+    with pytest.raises(ValueError, match=r"`wqf_hidden_dim` must be in \[1, 4096\], got -64"):
+        AfarConfig(preset="cpu", device="cpu", wqf_hidden_dim=-64)
+    with pytest.raises(ValueError, match=r"feature 'observation.state' has shape \[50000000\]: at most"):
+        ManiFlowConfig(preset="cpu", device="cpu", input_features={
+            "observation.state": PolicyFeature(FeatureType.STATE, (50_000_000,))})
+    assert 12 * 768**2 < MAX_STACK_SIZE
+    assert bound_problems({"dit_mlp_ratio": float("nan"), "n_points": True, "unrelated": -1}) == [
+        "`dit_mlp_ratio` must be in [0.01, 16.0], got nan", "`n_points` must be an integer in [2, 16384], got True"]
+
+
+def test_observation_sizes_a_checkpoint_asks_the_env_for_are_bounded(tmp_path):
+    """A 3 M-point cloud or a 20 000 x 20 000 image in a checkpoint's input shapes (any policy type, e.g. ACT) is
+    refused where bavo-eval reads them, naming the file; the env and LeRobot's env config refuse them too."""
+    from lerobot_bavo.checkpoints import CheckpointMismatchError, env_settings
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.envs.configs import BavoEnvConfig
+    from lerobot_bavo.eval.cli import env_kwargs_for_run
+
+    act = tmp_path / "act"
+    act.mkdir()
+    for inputs, message in (
+            ({"observation.images.active": {"type": "VISUAL", "shape": [3, 20000, 20000]}},
+             r"`image_height` must be in \[16, 4096\], got 20000; `image_width` must be in \[16, 4096\], got 20000"),
+            ({"observation.point_cloud": {"type": "STATE", "shape": [3_000_000 * 6]}},
+             r"`n_points` must be in \[2, 16384\], got 3000000")):
+        (act / "config.json").write_text(json.dumps({"type": "act", "input_features": inputs}))
+        with pytest.raises(CheckpointMismatchError, match="config.json asks the env for observations out of bounds: "
+                                                          + message):
+            env_settings(act)
+        with pytest.raises(SystemExit, match=message):
+            env_kwargs_for_run(str(act))
+    with pytest.raises(ValueError, match=r"`n_points` must be in \[2, 16384\], got 3000000"):
+        BavoEnv("cube_handoff", "clean", n_points=3_000_000, render_mode=None)
+    with pytest.raises(ValueError, match=r"`image_width` must be in \[16, 4096\], got 20000"):
+        BavoEnvConfig(image_width=20000)
+    # a config.json that is huge, or not UTF-8: named, not read whole / not a UnicodeDecodeError
+    (act / "config.json").write_bytes(b'{"type": "act", "x": "' + b"a" * (2 << 20) + b'"}')
+    with pytest.raises(CheckpointMismatchError, match="config.json is over 1048576 bytes"):
+        env_settings(act)
+    (act / "config.json").write_bytes(b'{"type": "\xff\xfe"}')
+    with pytest.raises(CheckpointMismatchError, match="config.json is not UTF-8 text"):
+        env_settings(act)
+
+
+def test_a_truncated_model_safetensors_is_named(checkpoint, tmp_path):
+    """A cut-off download: before, LeRobot's loader raised a bare SafetensorError traceback."""
+    from lerobot_bavo.checkpoints import CheckpointMismatchError, check_tensor_files
+    from lerobot_bavo.eval.cli import evaluate
+    from lerobot_bavo.eval.rollout import LeRobotPolicyAgent
+
+    cut = _copy(checkpoint, tmp_path / "cut")
+    weights = cut / "model.safetensors"
+    weights.write_bytes(weights.read_bytes()[: weights.stat().st_size // 2])
+    out = tmp_path / "eval"
+    before = _finished_run(out)
+    with pytest.raises(SystemExit, match=r"model.safetensors is truncated or not a safetensors file \(.*incomplete"):
+        evaluate(str(cut), ["cube_handoff"], ["clean"], 1, 1000, out)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    with _small_env() as env, pytest.raises(CheckpointMismatchError, match="model.safetensors is truncated"):
+        LeRobotPolicyAgent(cut, env)
+    weights.unlink()
+    with pytest.raises(CheckpointMismatchError, match="has no model.safetensors"):
+        check_tensor_files(cut)
+    check_tensor_files(checkpoint)  # the whole one passes
