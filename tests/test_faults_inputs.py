@@ -150,3 +150,87 @@ def test_a_truncated_model_safetensors_is_named(checkpoint, tmp_path):
     with pytest.raises(CheckpointMismatchError, match="has no model.safetensors"):
         check_tensor_files(cut)
     check_tensor_files(checkpoint)  # the whole one passes
+
+
+# ----------------------------------------------------------------------------- 5. bavo-view --web
+def _listening(port: int) -> list[str]:
+    """Local addresses (hex, as in /proc/net/tcp*) with a socket listening on `port`."""
+    out = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as fh:
+            for line in fh.readlines()[1:]:
+                local, state = line.split()[1], line.split()[3]
+                address, hex_port = local.rsplit(":", 1)
+                if state == "0A" and int(hex_port, 16) == port:
+                    out.append(address)
+    return out
+
+
+@pytest.fixture(scope="module")
+def small_rrd(tmp_path_factory) -> Path:
+    import numpy as np
+    import rerun as rr
+
+    path = tmp_path_factory.mktemp("rrd") / "small.rrd"
+    rec = rr.RecordingStream("bavo_view")
+    rec.save(path)
+    for k in range(5):
+        rec.set_time("frame_index", sequence=k)
+        rec.log("world/cloud", rr.Points3D(np.random.default_rng(k).random((32, 3))))
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads the listening sockets from /proc (Linux)")
+def test_bavo_view_web_listens_on_loopback_only_and_stops_its_server(small_rrd):
+    """Before: rerun's SDK servers listened on 0.0.0.0 (the recording was readable from the network), and a start
+    could hang in serve_grpc before printing the URL. Now rerun's CLI serves it bound to 127.0.0.1; the URL is
+    printed once both ports accept connections; SIGTERM stops bavo-view and its server."""
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    proc = subprocess.Popen([sys.executable, "-m", "lerobot_bavo.viz", "--rrd", str(small_rrd), "--web",
+                             "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    try:
+        line = proc.stdout.readline()  # blocks until the URL (or the end, on failure)
+        m = re.search(r"serving the web viewer at http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1"
+                      r"%3A(\d+)%2Fproxy \(this machine only", line)
+        assert m, line + proc.stderr.read() if proc.poll() is not None else line
+        web, grpc = int(m.group(1)), int(m.group(2))
+        loopback = "0100007F"  # 127.0.0.1 as /proc/net/tcp writes it
+        assert _listening(web) == [loopback] and _listening(grpc) == [loopback]
+        page = urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=10).read()
+        assert b"<html" in page.lower()
+        children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
+        assert len(children) == 1
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+    assert not Path(f"/proc/{children[0]}").exists() or "zombie" in Path(f"/proc/{children[0]}/status").read_text()
+    assert _listening(web) == [] and _listening(grpc) == []
+
+
+def test_bavo_view_web_refuses_a_taken_port_and_documents_bind(small_rrd, capsys):
+    import socket
+
+    from lerobot_bavo.viz.cli import build_parser, main
+    from lerobot_bavo.viz.serve import client_host, viewer_url
+
+    assert "--bind" in build_parser().format_help() and "0.0.0.0" in build_parser().format_help()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["--rrd", str(small_rrd), "--web", "--grpc-port", str(port), "--web-port", "0"]) == 2
+    assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err  # before: a URL to a dead server
+    with pytest.raises(SystemExit):
+        main(["--rrd", str(small_rrd), "--web", "--web-port", "70000"])
+    assert client_host("0.0.0.0") == "127.0.0.1" and client_host("::") == "::1"
+    assert viewer_url("::1", 1, 2) == "http://[::1]:1/?url=rerun%2Bhttp%3A%2F%2F%5B%3A%3A1%5D%3A2%2Fproxy"

@@ -13,8 +13,10 @@ Modes (one of):
   --save FILE.rrd  write a rerun recording and exit (the default, for headless machines: FILE
                    defaults to outputs/view/<dataset>_episode<k>.rrd); open it anywhere with
                    `rerun FILE.rrd` or `bavo-view --rrd FILE.rrd --web`
-  --web            serve rerun's web viewer on this machine (http://localhost:<--web-port>) until
-                   Ctrl-C; over ssh, forward both --web-port and --grpc-port
+  --web            serve rerun's web viewer (http://localhost:<--web-port>) until Ctrl-C, with
+                   rerun's CLI bound to --bind: 127.0.0.1 by default, so only this machine can open
+                   it (over ssh, forward both --web-port and --grpc-port); --bind 0.0.0.0 opens both
+                   ports to the network (anyone who can reach them sees the recording)
   --spawn          open rerun's native viewer (needs a display)
 
 Examples:
@@ -32,6 +34,8 @@ import sys
 import time
 from pathlib import Path
 
+from lerobot_bavo.viz.serve import DEFAULT_BIND
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="bavo-view", description=__doc__,
@@ -48,8 +52,12 @@ def build_parser() -> argparse.ArgumentParser:
     mode.add_argument("--web", action="store_true", help="serve rerun's web viewer until Ctrl-C")
     mode.add_argument("--spawn", action="store_true", help="open rerun's native viewer")
     opt = p.add_argument_group("options")
-    opt.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090)")
-    opt.add_argument("--grpc-port", type=int, default=9876, help="port of the data server the web viewer reads (9876)")
+    opt.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090; 0: a free one)")
+    opt.add_argument("--grpc-port", type=int, default=9876,
+                     help="port of the data server the web viewer reads (default 9876; 0: a free one)")
+    opt.add_argument("--bind", default=DEFAULT_BIND, metavar="ADDR",
+                     help=f"address --web listens on (default {DEFAULT_BIND}: this machine only; 0.0.0.0 or :: "
+                          "opens it to the network)")
     opt.add_argument("--teacher", action="store_true",
                      help="also show the teacher's query points at t and their answers at t + 15 (arrows)")
     opt.add_argument("--relation-point", type=int, default=None, metavar="I",
@@ -102,6 +110,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--rrd is already a recording: use --web or --spawn to view it")
     if args.last_frame is not None and (args.last_frame < 0 or args.rrd is not None):
         parser.error("--last-frame needs a dataset episode and a frame index >= 0")
+    for name in ("web_port", "grpc_port"):
+        if not 0 <= getattr(args, name) <= 65535:
+            parser.error(f"--{name.replace('_', '-')} must be a port number in 0..65535 (0: a free one)")
     t0 = time.perf_counter()
     try:
         ep, name = _source_recording(args)
@@ -120,21 +131,80 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bavo-view: wrote {path} ({ep.length} frames, {path.stat().st_size / 1e6:.1f} MB) in "
               f"{time.perf_counter() - t0:.2f} s; open it with `rerun {path}` or `bavo-view --rrd {path} --web`")
         return 0
-    return _live(args, ep, kw)
+    if args.web:
+        return _web(args, ep, name, kw)
+    return _spawn(args, ep, kw)
 
 
-def _live(args, ep, kw) -> int:
+def _web(args, ep, name: str, kw) -> int:
+    """Serve the recording (the --rrd file, or the episode written to a temporary .rrd) with rerun's CLI on
+    --bind (`viz.serve`: why not the SDK's serve_grpc) until Ctrl-C or SIGTERM; the server never outlives us."""
+    import signal
+    import tempfile
+
+    from lerobot_bavo.viz.serve import (
+        ServeError,
+        client_host,
+        free_port,
+        send_recording,
+        start_server,
+        stop,
+        viewer_url,
+    )
+
+    def terminate(signum, frame):  # SIGTERM: leave through the finally below, which stops the server
+        raise SystemExit(128 + signum)
+
+    with tempfile.TemporaryDirectory(prefix="bavo-view-") as tmp:
+        rrd = args.rrd
+        if rrd is None:
+            from lerobot_bavo.viz.log import write_rrd
+
+            rrd = write_rrd(ep, Path(tmp) / f"{name}.rrd", **kw)
+        try:
+            grpc_port = free_port(args.bind, args.grpc_port)
+            web_port = free_port(args.bind, args.web_port)
+            if web_port == grpc_port:  # two picks of port 0 can coincide once the first is released
+                web_port = free_port(args.bind, 0)
+            child, grpc_url = start_server(args.bind, web_port, grpc_port, Path(tmp) / "rerun.log")
+        except ServeError as e:
+            print(f"bavo-view: {e}", file=sys.stderr)
+            return 2
+        try:
+            send_recording(Path(rrd), grpc_url)
+        except BaseException as e:
+            stop(child)
+            if not isinstance(e, ServeError):
+                raise
+            print(f"bavo-view: {e}", file=sys.stderr)
+            return 2
+        url = viewer_url(client_host(args.bind), web_port, grpc_port)
+        try:
+            previous = signal.signal(signal.SIGTERM, terminate)
+        except ValueError:  # not the main thread (an embedding caller): SIGTERM then just ends the process,
+            previous = None  # and the server with it (`serve.start_server` ties it to us)
+        try:
+            local = args.bind in ("127.0.0.1", "::1", "localhost")
+            where = "this machine only" if local else f"bound to {args.bind}: reachable from the network"
+            print(f"bavo-view: serving the web viewer at {url} ({where}; Ctrl-C to stop)", flush=True)
+            code = child.wait()
+            print(f"bavo-view: rerun's server exited ({code})", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            return 0
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+            stop(child)
+
+
+def _spawn(args, ep, kw) -> int:
     import rerun as rr
 
     from lerobot_bavo.viz.log import APPLICATION_ID, blueprint, log_episode
 
     rec = rr.RecordingStream(APPLICATION_ID)
-    if args.spawn:
-        rec.spawn(default_blueprint=blueprint())
-    else:
-        uri = rec.serve_grpc(grpc_port=args.grpc_port, default_blueprint=blueprint())
-        rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=uri)
-        print(f"bavo-view: serving the web viewer at http://localhost:{args.web_port}/?url={uri} (Ctrl-C to stop)")
+    rec.spawn(default_blueprint=blueprint())
     if ep is None:
         from rerun.experimental import RrdReader, send_chunks
 
@@ -143,13 +213,7 @@ def _live(args, ep, kw) -> int:
         rec.send_recording_name(ep.name)
         log_episode(rec, ep, **kw)
     rec.flush()
-    if args.spawn:
-        return 0
-    try:
-        while True:
-            time.sleep(3600)
-    except KeyboardInterrupt:
-        return 0
+    return 0
 
 
 if __name__ == "__main__":
