@@ -67,15 +67,22 @@ BOUNDS: dict[str, tuple[float, float]] = {
 STACKS = (("dit_num_layers", "dit_hidden_dim"), ("wqf_num_blocks", "wqf_hidden_dim"))
 INTEGER_FIELDS = frozenset(BOUNDS) - {"dit_mlp_ratio", "wqf_ffn_ratio"}
 
-_short = reprlib.Repr(maxstring=40, maxother=40, maxlist=4, maxtuple=4, maxdict=4, maxlevel=2).repr
+_BOUNDED_REPR = reprlib.Repr(maxstring=60, maxother=60, maxlist=6, maxtuple=6, maxdict=6, maxset=6, maxlevel=3,
+                             maxlong=40)
+
+
+def short_repr(value) -> str:
+    """`repr(value)` cut to a few dozen characters and items (reprlib), for error messages about input we did not
+    write: a full repr of a large or aliased structure (a YAML alias bomb) costs seconds and gigabytes."""
+    return _BOUNDED_REPR.repr(value)
 
 
 def _number_problem(name: str, value, low: float, high: float) -> str | None:
     integer = name in INTEGER_FIELDS
     if isinstance(value, bool) or not isinstance(value, numbers.Integral if integer else numbers.Real):
-        return f"`{name}` must be {'an integer' if integer else 'a number'} in [{low}, {high}], got {_short(value)}"
+        return f"`{name}` must be {'an integer' if integer else 'a number'} in [{low}, {high}], got {short_repr(value)}"
     if not (low <= value <= high):  # also refuses NaN
-        return f"`{name}` must be in [{low}, {high}], got {_short(value)}"
+        return f"`{name}` must be in [{low}, {high}], got {short_repr(value)}"
     return None
 
 
@@ -112,11 +119,14 @@ def feature_problems(features: Mapping[str, object] | None) -> list[str]:
         shape = feature.get("shape") if isinstance(feature, Mapping) else getattr(feature, "shape", None)
         if not (isinstance(shape, (list, tuple)) and shape
                 and all(isinstance(n, numbers.Integral) and not isinstance(n, bool) and n > 0 for n in shape)):
-            problems.append(f"feature {_short(key)} must have a shape of positive integers, got {_short(shape)}")
+            problems.append(f"feature {short_repr(key)} must have a shape of positive integers, got "
+                            f"{short_repr(shape)}")
         elif len(shape) == 3 and max(shape) > MAX_IMAGE_SIDE:
-            problems.append(f"feature {_short(key)} has shape {list(shape)}: an image side is at most {MAX_IMAGE_SIDE}")
+            problems.append(f"feature {short_repr(key)} has shape {short_repr(list(shape))}: an image side is at most "
+                            f"{MAX_IMAGE_SIDE}")
         elif len(shape) != 3 and math.prod(int(n) for n in shape) > MAX_FEATURE_SIZE:
-            problems.append(f"feature {_short(key)} has shape {list(shape)}: at most {MAX_FEATURE_SIZE} elements")
+            problems.append(f"feature {short_repr(key)} has shape {short_repr(list(shape))}: at most "
+                            f"{MAX_FEATURE_SIZE} elements")
     return problems
 
 

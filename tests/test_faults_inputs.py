@@ -234,3 +234,58 @@ def test_bavo_view_web_refuses_a_taken_port_and_documents_bind(small_rrd, capsys
         main(["--rrd", str(small_rrd), "--web", "--web-port", "70000"])
     assert client_host("0.0.0.0") == "127.0.0.1" and client_host("::") == "::1"
     assert viewer_url("::1", 1, 2) == "http://[::1]:1/?url=rerun%2Bhttp%3A%2F%2F%5B%3A%3A1%5D%3A2%2Fproxy"
+
+
+# ----------------------------------------------------------------------------- 6. grid files
+ALIAS_BOMB = """\
+a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]
+b: &b [*a,*a,*a,*a,*a,*a,*a,*a,*a]
+c: &c [*b,*b,*b,*b,*b,*b,*b,*b,*b]
+d: &d [*c,*c,*c,*c,*c,*c,*c,*c,*c]
+e: &e [*d,*d,*d,*d,*d,*d,*d,*d,*d]
+f: &f [*e,*e,*e,*e,*e,*e,*e,*e,*e]
+g: &g [*f,*f,*f,*f,*f,*f,*f,*f,*f]
+h: &h [*g,*g,*g,*g,*g,*g,*g,*g,*g]
+tasks: [*h,*h,*h,*h,*h,*h,*h,*h,*h]
+methods: {expert: expert}
+"""
+
+
+def test_a_yaml_alias_bomb_and_other_hostile_grid_files_are_refused_quickly(tmp_path):
+    """Before: the ~500-byte bomb under `tasks:` took 18 s and 2.3 GB (its repr in the error message), a
+    non-UTF-8 file gave a UnicodeDecodeError traceback. Now: refused in milliseconds, naming the file; messages
+    never repr more than a few dozen characters of what the file holds; a finished grid is untouched."""
+    from lerobot_bavo.eval.cli import main
+    from lerobot_bavo.eval.grid import MAX_GRID_BYTES, GridError, load_grid
+
+    out = tmp_path / "grid_out"
+    before = _finished_run(out)
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text(ALIAS_BOMB)
+    t0 = time.perf_counter()
+    with pytest.raises(SystemExit, match=rf"grid file {bomb} is not valid YAML: .*anchors and aliases \(&name, \*name\) "
+                                         "are not allowed"):
+        main(["--grid", str(bomb), "--output-dir", str(out)])
+    assert time.perf_counter() - t0 < 5
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+    def refused(name: str, data: bytes, message: str) -> str:
+        path = tmp_path / name
+        path.write_bytes(data)
+        t0 = time.perf_counter()
+        with pytest.raises(GridError, match=message) as exc:
+            load_grid(path)
+        assert time.perf_counter() - t0 < 10 and str(path) in str(exc.value)
+        return str(exc.value)
+
+    refused("alias.yaml", b"tasks: &t [cube_handoff]\nconditions: *t\nmethods: {expert: expert}\n", "anchors and aliases")
+    refused("latin1.yaml", "tasks: [caf\u00e9]\n".encode("latin-1"), r"is not UTF-8 text \(invalid continuation byte")
+    refused("big.yaml", b"# padding\n" * (MAX_GRID_BYTES // 10 + 1), f"is over {MAX_GRID_BYTES} bytes")
+    refused("deep.yaml", b"tasks: " + b"[" * 200_000 + b"]" * 200_000 + b"\n", "cannot be read|not valid YAML")
+    refused("digits.yaml", b"episodes: " + b"9" * 5000 + b"\nmethods: {expert: expert}\n", "cannot be read")
+    # a long (alias-free) list: the message shows a few items, not all 50 000
+    names = ", ".join(f"task{i}" for i in range(50_000)).encode()
+    message = refused("long.yaml", b"tasks: [" + names + b"]\nmethods: {expert: expert}\n", "unknown task 'task0'")
+    assert len(message) < 1000
+    message = refused("long_value.yaml", b"methods: {expert: " + b"x" * 500_000 + b"}\n", "checkpoint 'xxx")
+    assert len(message) < 1000

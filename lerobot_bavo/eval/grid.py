@@ -14,7 +14,8 @@ A grid file (YAML) names the cells; `configs/grid_expert.yaml` is an example:
         tasks: [cube_handoff]               # optional: this method on fewer tasks / conditions
       maniflow: [ckpt_seed0, ckpt_seed1]    # a list is a training-seed axis labelled 0, 1, ...
 
-Relative checkpoint paths are resolved against the current directory. Every (method, training seed) is one
+The file is UTF-8 YAML of at most `MAX_GRID_BYTES`, without anchors or aliases (`&name`, `*name`; see
+`load_grid`). Relative checkpoint paths are resolved against the current directory. Every (method, training seed) is one
 ordinary `bavo-eval` run in `<output-dir>/runs/<method>/<label>/` (its own run.json, episodes.jsonl,
 results.json), so a killed grid re-run with the same command keeps every finished episode and with them every
 finished cell, and runs only what is missing. The grid then writes, in `<output-dir>`:
@@ -35,12 +36,15 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from lerobot_bavo.limits import short_repr
+
 GRID_VERSION = 1
 METRICS = ("sr", "tps", "cvg", "joint")
 DEFAULT_CONDITIONS = ("clean", "stage", "random")
 TOP_KEYS = ("tasks", "conditions", "episodes", "seed", "methods")
 METHOD_KEYS = ("checkpoints", "tasks", "conditions")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+MAX_GRID_BYTES = 1 << 20  # a grid file is a few hundred bytes; YAML parsing in Python costs ~1 s per MB
 
 
 class GridError(ValueError):
@@ -75,12 +79,12 @@ def _names(value, what: str, known, where: str) -> tuple[str, ...]:
     if isinstance(value, str):
         value = [v for v in value.split(",") if v]
     if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise GridError(f"{where}: {what} must be a non-empty list of names, got {value!r}")
+        raise GridError(f"{where}: {what} must be a non-empty list of names, got {short_repr(value)}")
     for v in value:
         if v not in known:
-            raise GridError(f"{where}: unknown {what[:-1]} {v!r}; choose from {', '.join(known)}")
+            raise GridError(f"{where}: unknown {what[:-1]} {short_repr(v)}; choose from {', '.join(known)}")
     if len(set(value)) != len(value):
-        raise GridError(f"{where}: {what} lists a name twice: {value}")
+        raise GridError(f"{where}: {what} lists a name twice: {short_repr(value)}")
     return tuple(value)
 
 
@@ -92,14 +96,16 @@ def _checkpoints(value, where: str) -> dict[str, str]:
         value = {str(i): v for i, v in enumerate(value)}
     if not isinstance(value, dict) or not value:
         raise GridError(f"{where}: give one policy, a list of checkpoints (one per training seed) or a mapping "
-                        f"label -> checkpoint, got {value!r}")
+                        f"label -> checkpoint, got {short_repr(value)}")
     out = {}
     for label, policy in value.items():
         label = str(label)
         if not _NAME.match(label):
-            raise GridError(f"{where}: training-seed label {label!r} must be a plain name (letters, digits, _ . + -)")
+            raise GridError(f"{where}: training-seed label {short_repr(label)} must be a plain name (letters, digits, "
+                            "_ . + -)")
         if not isinstance(policy, str) or not policy:
-            raise GridError(f"{where}: checkpoint of {label!r} must be a path or an expert name, got {policy!r}")
+            raise GridError(f"{where}: checkpoint of {short_repr(label)} must be a path or an expert name, got "
+                            f"{short_repr(policy)}")
         out[label] = policy
     return out
 
@@ -111,11 +117,16 @@ def check_policy(policy: str, where: str) -> None:
     if policy in EXPERT_POLICIES:
         return
     path = Path(policy)
-    if not path.exists():
-        raise GridError(f"{where}: checkpoint {policy!r} not found ({path.resolve()}; relative paths are resolved "
-                        f"against the current directory); or use {' / '.join(EXPERT_POLICIES)}")
-    if not (path / "config.json").is_file():
-        raise GridError(f"{where}: {policy!r} is not a LeRobot checkpoint folder (no config.json in {path.resolve()})")
+    try:
+        exists, has_config = path.exists(), (path / "config.json").is_file()
+    except OSError as e:  # e.g. a name too long for the file system
+        raise GridError(f"{where}: checkpoint {short_repr(policy)} cannot be looked up ({e.strerror})") from None
+    if not exists:
+        raise GridError(f"{where}: checkpoint {short_repr(policy)} not found ({path.resolve()}; relative paths are "
+                        f"resolved against the current directory); or use {' / '.join(EXPERT_POLICIES)}")
+    if not has_config:
+        raise GridError(f"{where}: {short_repr(policy)} is not a LeRobot checkpoint folder (no config.json in "
+                        f"{path.resolve()})")
 
 
 def parse_grid(data, source: str = "grid") -> Grid:
@@ -127,7 +138,7 @@ def parse_grid(data, source: str = "grid") -> Grid:
         raise GridError(f"{source}: a grid file is a mapping with keys {', '.join(TOP_KEYS)}, got {type(data).__name__}")
     unknown = sorted(set(map(str, data)) - set(TOP_KEYS))
     if unknown:
-        raise GridError(f"{source}: unknown key {', '.join(map(repr, unknown))}; a grid file has {', '.join(TOP_KEYS)}")
+        raise GridError(f"{source}: unknown key {short_repr(unknown)[1:-1]}; a grid file has {', '.join(TOP_KEYS)}")
     tasks = _names(data.get("tasks", list(TASKS)), "tasks", list(TASKS), f"{source}: tasks")
     conditions = _names(data.get("conditions", list(DEFAULT_CONDITIONS)), "conditions", list(CONDITIONS),
                         f"{source}: conditions")
@@ -135,21 +146,22 @@ def parse_grid(data, source: str = "grid") -> Grid:
     for key, default, low in (("episodes", 20, 1), ("seed", 1000, 0)):
         v = data.get(key, default)
         if not isinstance(v, int) or isinstance(v, bool) or v < low:
-            raise GridError(f"{source}: {key} must be an integer >= {low}, got {v!r}")
+            raise GridError(f"{source}: {key} must be an integer >= {low}, got {short_repr(v)}")
         numbers[key] = v
     raw = data.get("methods")
     if not isinstance(raw, dict) or not raw:
-        raise GridError(f"{source}: methods must be a non-empty mapping name -> policy or checkpoints, got {raw!r}")
+        raise GridError(f"{source}: methods must be a non-empty mapping name -> policy or checkpoints, got "
+                        f"{short_repr(raw)}")
     methods = []
     for name, spec in raw.items():
         name = str(name)
-        where = f"{source}: methods.{name}"
+        where = f"{source}: methods.{short_repr(name)[1:-1]}"
         if not _NAME.match(name):
             raise GridError(f"{where}: a method name must be a plain name (letters, digits, _ . + -)")
         if isinstance(spec, dict):
             unknown = sorted(set(map(str, spec)) - set(METHOD_KEYS))
             if unknown:
-                raise GridError(f"{where}: unknown key {', '.join(map(repr, unknown))}; a method has "
+                raise GridError(f"{where}: unknown key {short_repr(unknown)[1:-1]}; a method has "
                                 f"{', '.join(METHOD_KEYS)}")
             if "checkpoints" not in spec:
                 raise GridError(f"{where}: missing key 'checkpoints' (one policy, or one checkpoint per training seed)")
@@ -166,16 +178,48 @@ def parse_grid(data, source: str = "grid") -> Grid:
     return Grid(tasks, conditions, numbers["episodes"], numbers["seed"], tuple(methods))
 
 
+def _no_aliases_loader():
+    """PyYAML's safe loader refusing anchors and aliases (`&name`, `*name`).
+
+    Why: aliases let a few hundred bytes stand for a structure of billions of items (a 456-byte "billion laughs"
+    under `tasks:` took 18 s and 2.3 GB, in the error message's repr). A grid file never needs them."""
+    import yaml
+
+    class NoAliasesLoader(yaml.SafeLoader):
+        def compose_node(self, parent, index):
+            event = self.peek_event()
+            if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None) is not None:
+                raise yaml.composer.ComposerError(None, None, "anchors and aliases (&name, *name) are not allowed in "
+                                                  "a grid file; write the values out", event.start_mark)
+            return super().compose_node(parent, index)
+
+    return NoAliasesLoader
+
+
 def load_grid(path: str | Path) -> Grid:
+    """Read and check a grid file: at most `MAX_GRID_BYTES` of UTF-8 YAML without anchors or aliases; every
+    problem is a `GridError` naming the file."""
     import yaml
 
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_GRID_BYTES + 1)
     except OSError as e:
         raise GridError(f"grid file {path}: cannot read it ({e.strerror})") from None
+    if len(raw) > MAX_GRID_BYTES:
+        raise GridError(f"grid file {path} is over {MAX_GRID_BYTES} bytes; a grid file lists a few methods and "
+                        "checkpoints")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise GridError(f"grid file {path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
+    try:
+        data = yaml.load(text, Loader=_no_aliases_loader())  # noqa: S506 (a safe loader)
     except yaml.YAMLError as e:
         raise GridError(f"grid file {path} is not valid YAML: {e}") from None
+    except (RecursionError, ValueError) as e:  # nesting past Python's stack; an integer of > 4300 digits
+        raise GridError(f"grid file {path} cannot be read: {short_repr(str(e))}") from None
     return parse_grid(data, f"grid file {path}")
 
 
