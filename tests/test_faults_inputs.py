@@ -289,3 +289,65 @@ def test_a_yaml_alias_bomb_and_other_hostile_grid_files_are_refused_quickly(tmp_
     assert len(message) < 1000
     message = refused("long_value.yaml", b"methods: {expert: " + b"x" * 500_000 + b"}\n", "checkpoint 'xxx")
     assert len(message) < 1000
+
+
+# ----------------------------------------------------------------------------- 7. results and datasets
+def _fake_run_job(job: dict) -> dict:
+    """An instant episode (what test_faults.FAKE_EVAL's workers return): the write path is the real one."""
+    return {"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True,
+            "progress": 5, "steps": 300, "padding": "x" * 200}
+
+
+def test_a_full_disk_while_writing_results_leaves_the_previous_results_whole(tmp_path, monkeypatch, capsys):
+    """Before: results.json was written in place, so a full disk left invalid JSON beside the previous results.md.
+    Now results.json and results.md are written through temporaries and renamed together: a failed write ends
+    the run with a message, leaves both previous files as they were (valid), and the re-run finishes them."""
+    from lerobot_bavo.eval import cli
+    from test_faults import _fake_eval
+
+    monkeypatch.setattr(cli, "_run_job", _fake_run_job)
+    out = tmp_path / "eval"
+    base = ["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean", "--videos", "0",
+            "--output-dir", str(out)]
+    cli.main(base + ["--episodes", "1"])
+    before = {name: (out / name).read_bytes() for name in ("results.json", "results.md")}
+    line = len(json.dumps({"task": "cube_handoff", "condition": "clean", "seed": 1001, "success": True,
+                           "progress": 5, "steps": 300, "padding": "x" * 200, "wall_s": 0.0})) + 1
+    # the file-size limit lets episodes.jsonl hold both records, but not the new results.json
+    full = _fake_eval(0, 2 * line + 10, ["--episodes", "2", "--output-dir", str(out)])
+    assert full.returncode != 0 and "Traceback" not in full.stderr
+    assert "writing results.json, results.md in" in full.stderr and "(File too large)" in full.stderr
+    assert "the previous files are unchanged" in full.stderr
+    assert {name: (out / name).read_bytes() for name in before} == before  # whole, and still a matching pair
+    assert json.loads(before["results.json"])["cells"]["cube_handoff/clean"]["n_episodes"] == 1
+    assert not list(out.glob("*.tmp"))
+    assert len((out / "episodes.jsonl").read_text().splitlines()) == 2  # the finished episode is kept
+
+    capsys.readouterr()
+    cli.main(base + ["--episodes", "2"])
+    assert "2 finished episodes kept, 0 to run" in capsys.readouterr().out
+    assert json.loads((out / "results.json").read_text())["cells"]["cube_handoff/clean"]["n_episodes"] == 2
+
+
+def test_result_files_are_written_all_or_none(tmp_path, monkeypatch):
+    import os
+
+    from lerobot_bavo.runtime.files import default_file_mode, write_files_atomic
+
+    a, b = tmp_path / "a.json", tmp_path / "b.md"
+    write_files_atomic({a: "{}", b: b"old"})
+    assert a.read_text() == "{}" and b.read_bytes() == b"old"
+    assert a.stat().st_mode & 0o777 == default_file_mode()  # the usual mode, not mkstemp's 0600
+    real_fsync, calls = os.fsync, []
+
+    def failing_fsync(fd):  # the second file's write fails (as ENOSPC shows at the latest on fsync)
+        calls.append(fd)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", failing_fsync)
+    with pytest.raises(OSError, match="No space"):
+        write_files_atomic({a: '{"new": 1}', b: b"new"})
+    assert a.read_text() == "{}" and b.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "a.json", "b.md"]

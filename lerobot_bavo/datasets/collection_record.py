@@ -13,20 +13,18 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from lerobot_bavo.datasets.hub import SIDECAR
+from lerobot_bavo.runtime.files import write_file_atomic
 
 RECORD_FORMAT = 1
 
 
 def write_json_atomic(path: Path, obj) -> None:
-    """Write JSON through a temporary file and a rename, so a kill never leaves half a file."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
+    """Write JSON through a temporary file and a rename, so a kill or a full disk never leaves half a file."""
+    write_file_atomic(path, json.dumps(obj, indent=1))
 
 
 @dataclass

@@ -17,6 +17,8 @@ missing ones run; the run is keyed on a digest of the checkpoint's files (not it
 checkpoint resumes, one replaced at the same path is refused instead of mixed in), and every
 record carries that digest. A torn last line of episodes.jsonl (a full disk, a kill mid-write) is
 dropped with a warning; one run at a time may write an output folder (a lock on its real path).
+results.json and results.md are written together through temporary files (`runtime.files`): a full disk
+leaves the previous pair whole, and the run ends with a message.
 
 Safety: checkpoints name processor classes that LeRobot imports. Only LeRobot's and this
 package's processor steps and audited policy types are loaded; --trust-remote-code lifts that for
@@ -307,7 +309,7 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
             raise SystemExit(f"bavo-eval: {output_dir} holds a run with different settings {previous} (now "
                              f"{settings}: another checkpoint, or the same path with other weights); use another "
                              "--output-dir")
-    settings_path.write_text(json.dumps(settings))
+    write_results({settings_path: json.dumps(settings)})
 
     done = read_episode_log(log_path)
     digest = settings.get("checkpoint_sha256")
@@ -344,11 +346,24 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
             cells[f"{task}/{cond}"] = summarize_cell(records)
     results = {"version": RESULTS_VERSION, "policy": policy_id, "tasks": tasks, "conditions": conditions,
                "episodes": episodes, "seed": seed, "cells": cells}
-    (output_dir / "results.json").write_text(json.dumps(results, indent=1))
     table = markdown_table(results)
-    (output_dir / "results.md").write_text(table)
+    write_results({output_dir / "results.json": json.dumps(results, indent=1), output_dir / "results.md": table})
     print(table)
     return results
+
+
+def write_results(files: dict) -> None:
+    """Write result files (path -> text or bytes) all or none (`runtime.files.write_files_atomic`); a failed
+    write (a full disk) ends the run with a message and leaves the previous files as they were."""
+    from lerobot_bavo.runtime.files import write_files_atomic
+
+    try:
+        write_files_atomic(files)
+    except OSError as e:
+        names = ", ".join(sorted({str(Path(p).name) for p in files}))
+        raise SystemExit(f"bavo-eval: writing {names} in {Path(next(iter(files))).parent} failed ({e.strerror}); "
+                         "the previous files are unchanged; free some space and re-run the same command: finished "
+                         "episodes are kept") from None
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -304,8 +304,11 @@ def grid_markdown(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def grid_plot(results: dict, path: Path) -> None:
-    """SR / TPS / CVG (rows) per condition, one column per task plus the mean over tasks, a bar per method."""
+def grid_plot(results: dict) -> bytes:
+    """SR / TPS / CVG (rows) per condition, one column per task plus the mean over tasks, a bar per method, as PNG
+    bytes (`run_grid` writes them with the other results, all or none)."""
+    import io
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -345,8 +348,10 @@ def grid_plot(results: dict, path: Path) -> None:
     fig.suptitle(f"BAVO-Bench grid: mean ± std over training seeds\n{results['episodes']} episodes per cell "
                  f"(seeds {results['seed']}-{results['seed'] + results['episodes'] - 1})", fontsize=11)
     fig.tight_layout(rect=(0, 0.05, 1, 0.96))
-    fig.savefig(path, dpi=110)
+    png = io.BytesIO()
+    fig.savefig(png, format="png", dpi=110)
     plt.close(fig)
+    return png.getvalue()
 
 
 # ------------------------------------------------------------------ running it
@@ -372,12 +377,12 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
     """Run (or resume) every (method, training seed) of the grid, then write results.json / .md / .png."""
     import contextlib
 
-    from lerobot_bavo.eval.cli import claim_output_dir, evaluate
+    from lerobot_bavo.eval.cli import claim_output_dir, evaluate, write_results
 
     output_dir = Path(output_dir)
     lock = claim_output_dir(output_dir, "bavo-eval --grid")
     try:
-        (output_dir / "grid.json").write_text(json.dumps(grid.as_dict(), indent=1))
+        write_results({output_dir / "grid.json": json.dumps(grid.as_dict(), indent=1)})
         pending = pending_episodes(grid, output_dir)
         total = sum(len(m.checkpoints) * len(m.tasks) * len(m.conditions) for m in grid.methods) * grid.episodes
         print(f"bavo-eval --grid: {total} episodes in {sum(len(m.checkpoints) for m in grid.methods)} runs; "
@@ -401,10 +406,9 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
                    "methods": {m.name: method_results(m, runs[m.name]) for m in grid.methods}}
         for name, m in results["methods"].items():
             m["runs"] = {label: str(run_dir(Path("."), name, label)) for label in m["checkpoints"]}
-        (output_dir / "results.json").write_text(json.dumps(results, indent=1))
         table = grid_markdown(results)
-        (output_dir / "results.md").write_text(table)
-        grid_plot(results, output_dir / "results.png")
+        write_results({output_dir / "results.json": json.dumps(results, indent=1), output_dir / "results.md": table,
+                       output_dir / "results.png": grid_plot(results)})
         print(table)
         return results
     finally:
