@@ -351,3 +351,139 @@ def test_result_files_are_written_all_or_none(tmp_path, monkeypatch):
         write_files_atomic({a: '{"new": 1}', b: b"new"})
     assert a.read_text() == "{}" and b.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == [
         "a.json", "b.md"]
+
+
+DS_SETTINGS = dict(image_height=48, image_width=64, n_points=32)
+DS_REPO = "tester/bavo_faults"
+
+
+def _collect_config(root: Path, episodes: int, **kw):
+    from lerobot_bavo.datasets import schema as S
+    from lerobot_bavo.datasets.collect import CollectConfig
+
+    base = dict(task="cube_handoff", condition="stage", episodes=episodes, repo_id=DS_REPO, root=root, workers=0,
+                commit_every=2, settings=S.ObservationSettings(**DS_SETTINGS), episode_length=30,
+                keep_failures=True, progress=False)
+    base.update(kw)
+    return CollectConfig(**base)
+
+
+def _collect_args(root: Path, episodes: int) -> list[str]:
+    return ["--task", "cube_handoff", "--condition", "stage", "--episodes", str(episodes), "--repo-id", DS_REPO,
+            "--root", str(root), "--workers", "0", "--commit-every", "2", "--image-height", "48", "--image-width",
+            "64", "--n-points", "32", "--episode-length", "30", "--keep-failures", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def dataset_root(tmp_path_factory) -> Path:
+    """3 episodes in 2 writer sessions: episodes 0 and 1 share one data file and one mp4 (LeRobot concatenates
+    the second episode's video into the first's file), episode 2 has its own."""
+    from lerobot_bavo.datasets.collect import collect
+
+    root = tmp_path_factory.mktemp("ds") / "bavo_faults"
+    assert collect(_collect_config(root, 3))["episodes"] == 3
+    return root
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    """Every committed file of a dataset (data, videos, meta), relative path -> bytes."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.parts[len(root.parts)] in ("data", "videos", "meta")}
+
+
+def test_every_dataset_file_gets_the_usual_mode(dataset_root):
+    """Before: the mp4 that holds two episodes (LeRobot builds it in a NamedTemporaryFile) was 0600, every other
+    file 0644."""
+    from lerobot_bavo.runtime.files import default_file_mode
+
+    modes = {str(p.relative_to(dataset_root)): p.stat().st_mode & 0o777 for p in dataset_root.rglob("*")
+             if p.is_file() and p.parts[len(dataset_root.parts)] in ("data", "videos", "meta")}
+    assert sum(name.endswith(".mp4") for name in modes) == 2
+    assert set(modes.values()) == {default_file_mode()}, modes
+
+
+def test_resume_without_meta_episodes_is_refused_and_never_reaches_the_hub(dataset_root, tmp_path, monkeypatch,
+                                                                         capsys):
+    """Before: LeRobot, finding no meta/episodes, fetched meta/ from the Hub repo named by --repo-id into the local
+    folder. Now bavo-collect refuses before LeRobot opens the dataset, naming the folder; nothing is changed."""
+    import huggingface_hub
+    import lerobot.datasets.dataset_metadata as dataset_metadata
+
+    from lerobot_bavo.datasets.collect import main as collect_main
+
+    hub_calls = []
+
+    def no_hub(*args, **kwargs):
+        hub_calls.append(args)
+        raise AssertionError("the Hub was contacted")
+
+    for module in (huggingface_hub, dataset_metadata):
+        monkeypatch.setattr(module, "snapshot_download", no_hub)
+    monkeypatch.setattr(dataset_metadata, "get_safe_version", no_hub)
+    import shutil
+
+    root = _copy(dataset_root, tmp_path / "no_episodes")
+    shutil.rmtree(root / "meta" / "episodes")
+    before = _files(root)
+    assert collect_main(_collect_args(root, 4)) == 2
+    err = capsys.readouterr().err
+    assert f"{root / 'meta' / 'episodes'} holds no episode table (3 episode(s) in meta/info.json)" in err
+    assert "fetch missing metadata from the Hub" in err and "Traceback" not in err
+    assert hub_calls == [] and _files(root) == before
+
+
+def _corrupt_parquet_page(path: Path) -> None:
+    """Overwrite the header of the first data page of one column chunk: the footer (all the old check read) stays
+    valid, reading the column fails."""
+    import pyarrow.parquet as pq
+
+    meta = pq.ParquetFile(path).metadata
+    column = next(meta.row_group(0).column(i) for i in range(meta.num_columns)
+                  if meta.row_group(0).column(i).path_in_schema.startswith("observation.point_cloud"))
+    data = bytearray(path.read_bytes())
+    data[column.data_page_offset: column.data_page_offset + 24] = b"\xff" * 24
+    path.write_bytes(bytes(data))
+    assert pq.ParquetFile(path).metadata.num_rows == meta.num_rows  # the footer still reads
+
+
+@pytest.mark.parametrize("damage", ["truncated_mp4", "corrupt_parquet"])
+def test_resume_and_the_views_builder_refuse_a_damaged_committed_file(dataset_root, tmp_path, damage, capsys):
+    """Before: a truncated mp4 (it still opens: LeRobot writes the index first) or a parquet file with a damaged
+    page (its footer still reads) was kept by a resumed collection and copied by the views builder, both exit 0;
+    training failed on it. Now both refuse, naming the file, and change nothing; with the file restored the
+    collection resumes."""
+    import av
+
+    from lerobot_bavo.datasets.collect import main as collect_main
+    from lerobot_bavo.datasets.views import main as views_main
+
+    root = _copy(dataset_root, tmp_path / damage)
+    if damage == "truncated_mp4":
+        bad = root / "videos" / "observation.images.active" / "chunk-000" / "file-000.mp4"
+        original = bad.read_bytes()
+        bad.write_bytes(original[: len(original) * 3 // 4])
+        with av.open(str(bad)) as c:  # what the old check did: it opens, with a video stream
+            assert c.streams.video
+        message = f"corrupted video file {bad}: "
+    else:
+        bad = root / "data" / "chunk-000" / "file-000.parquet"
+        original = bad.read_bytes()
+        _corrupt_parquet_page(bad)
+        message = f"corrupted data file {bad}: "
+    before = _files(root)
+    assert collect_main(_collect_args(root, 4)) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert _files(root) == before
+    with pytest.raises(SystemExit, match=re.escape(message)):
+        views_main(["--root", str(root), "--view", "points", "--output-root", str(tmp_path / "view")])
+    assert not (tmp_path / "view").exists()
+
+    bad.write_bytes(original)  # restored: the collection continues, keeping the 3 episodes
+    assert collect_main(_collect_args(root, 4)) == 0
+    from lerobot_bavo.datasets.hub import load_bavo_dataset
+
+    ds = load_bavo_dataset(DS_REPO, root=root)
+    assert ds.meta.total_episodes == 4
+    assert all((root / name).read_bytes() == data for name, data in before.items()
+               if name.startswith(("data/", "videos/")) and name != str(bad.relative_to(root)))

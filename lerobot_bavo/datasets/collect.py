@@ -75,6 +75,7 @@ from lerobot_bavo.datasets.transaction import (
     WriterSessionSnapshot,
     remove_stray_dirs,
 )
+from lerobot_bavo.datasets.verify import check_committed_files
 from lerobot_bavo.datasets.video_codec import (
     DEFAULT_VIDEO_CODEC,
     VIDEO_CODECS,
@@ -87,6 +88,7 @@ from lerobot_bavo.datasets.video_codec import record_entry as video_codec_record
 from lerobot_bavo.datasets.writer import StreamingWriter, WriterSession
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
+from lerobot_bavo.runtime.files import restore_default_mode
 from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments, executor_problem
 
 logger = logging.getLogger("bavo-collect")
@@ -326,6 +328,13 @@ class Collector:
             raise CollectionError(
                 f"{self.root}: meta/info.json has {info['total_episodes']} episodes but {SIDECAR} records "
                 f"{len(self.record.episodes)}; the dataset was modified outside bavo-collect")
+        restore_default_mode(self.root.glob("videos/*/*/*.mp4"))  # the 0600 mp4s of earlier runs
+        try:  # before LeRobot opens it: a missing meta/ file would make LeRobot fetch meta/ from the Hub repo
+            check_committed_files(self.root, info, check_videos=self.cfg.use_videos)
+        except ValueError as e:
+            raise CollectionError(f"{e}. The committed episodes must be whole to continue this dataset (LeRobot would "
+                                  "otherwise fetch missing metadata from the Hub, or keep a damaged file): restore "
+                                  "the file, or collect into another --root") from None
         self._save_record()
 
     def _use_video_codec(self, codec: str) -> None:
@@ -402,7 +411,8 @@ class Collector:
         session.close(next_seed)
 
     def _verify_videos(self, first_index: int, batch: list[dict]) -> None:
-        """Every committed episode's video segment must cover all its frames (no dropped frames)."""
+        """Every committed episode's video segment must cover all its frames (no dropped frames), and the data and
+        video files holding the episodes must read whole (`verify.check_committed_files`, as on resume)."""
         if not self.cfg.use_videos:
             return
         import pyarrow.dataset as pads
@@ -421,6 +431,13 @@ class Collector:
                 raise CollectionError(
                     f"episode {first_index + i} (seed {b['seed']}): video covers {duration:.3f} s for {b['length']} "
                     "frames (dropped frames in the encoder?)")
+        from lerobot_bavo.datasets.hub import read_info
+
+        try:  # and the files holding them: every frame there, the last pictures decodable, the parquet whole
+            check_committed_files(self.root, read_info(self.root),
+                                  episode_indices={first_index + i for i in range(len(batch))})
+        except ValueError as e:
+            raise CollectionError(f"after writing episodes {first_index}..{first_index + len(batch) - 1}: {e}") from None
 
     # -------------------------------------------------------------- run
     def _lock(self):

@@ -44,45 +44,16 @@ def read_info(root: str | Path) -> dict:
 
 
 def check_files(root: str | Path, info: dict | None = None, check_videos: bool = True) -> None:
-    """Open every data / episode-metadata parquet footer (and video container) of a local dataset.
+    """Check the metadata and every committed file of a local dataset, reading them whole
+    (`verify.check_committed_files`: parquet pages and row counts, mp4 frame counts).
 
-    Raises ValueError naming the first unreadable file, or when the frame / episode counts in the
+    Raises ValueError naming the first missing or unreadable file, or when the frame / episode counts in the
     files disagree with `meta/info.json` (e.g. a collection killed while writing).
     """
-    import pyarrow.parquet as pq
+    from lerobot_bavo.datasets.verify import check_committed_files
 
     root = Path(root)
-    info = info if info is not None else read_info(root)
-
-    def rows(paths: list[Path], what: str) -> int:
-        total = 0
-        for p in paths:
-            try:
-                total += pq.ParquetFile(p).metadata.num_rows
-            except Exception as e:  # pyarrow raises ArrowInvalid / OSError for truncated files
-                raise ValueError(f"corrupted {what} file {p}: {type(e).__name__}: {e}") from e
-        return total
-
-    data_files = sorted((root / "data").glob("*/*.parquet"))
-    episode_files = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
-    n_frames = rows(data_files, "data")
-    n_episodes = rows(episode_files, "episode metadata")
-    if n_frames != info.get("total_frames") or n_episodes != info.get("total_episodes"):
-        raise ValueError(
-            f"dataset at {root} is inconsistent: meta/info.json declares {info.get('total_episodes')} episodes / "
-            f"{info.get('total_frames')} frames, the files hold {n_episodes} / {n_frames} "
-            "(an interrupted write? `bavo-collect` with the same arguments repairs its own datasets)"
-        )
-    if check_videos:
-        import av
-
-        for p in sorted((root / "videos").glob("*/*/*.mp4")):
-            try:
-                with av.open(str(p)) as container:
-                    if not container.streams.video:
-                        raise ValueError("no video stream")
-            except Exception as e:
-                raise ValueError(f"corrupted video file {p}: {type(e).__name__}: {e}") from e
+    check_committed_files(root, info if info is not None else read_info(root), check_videos=check_videos)
 
 
 def load_bavo_dataset(repo_id: str, root: str | Path | None = None, n_points: int | None = None,

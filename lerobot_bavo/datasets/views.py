@@ -71,6 +71,7 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     from lerobot.datasets.dataset_tools import remove_feature
 
     from lerobot_bavo.datasets.hub import load_bavo_dataset, read_sidecar
+    from lerobot_bavo.runtime.files import restore_default_mode
 
     root = Path(root)
     if repo_id is None:
@@ -90,9 +91,12 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
 
         labels = occluder_point_labels(source)
         info = {"dtype": "float32", "shape": [labels.shape[1]], "names": None}
-        return modify_features(source, add_features={S.TEACHER_OCCLUDER: (labels, info)}, remove_features=drop,
-                               output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
-    return remove_feature(source, drop, output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
+        view_ds = modify_features(source, add_features={S.TEACHER_OCCLUDER: (labels, info)}, remove_features=drop,
+                                  output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
+    else:
+        view_ds = remove_feature(source, drop, output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
+    restore_default_mode(Path(output_root).glob("videos/*/*/*.mp4"))  # copies keep the source's 0600 mp4s
+    return view_ds
 
 
 def occluder_point_labels(source, rows_per_block: int = 4096) -> np.ndarray:
@@ -121,7 +125,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repo-id", default=None, help="the dataset's repo id (default: from its collection record)")
     parser.add_argument("--output-root", type=Path, default=None, help="where the copy goes (default <root>_<view>)")
     args = parser.parse_args(argv)
-    ds = make_view(args.root, args.view, args.repo_id, args.output_root)
+    try:  # the source is checked whole first (`hub.load_bavo_dataset`): a damaged file is named, not copied
+        ds = make_view(args.root, args.view, args.repo_id, args.output_root)
+    except (FileNotFoundError, FileExistsError, ValueError) as e:
+        raise SystemExit(f"lerobot_bavo.datasets.views: {e}") from None
     print(f"wrote {ds.root} (repo id {ds.repo_id}): {ds.meta.total_episodes} episodes, {ds.meta.total_frames} frames, "
           f"features {[k for k in ds.meta.features if k not in DEFAULT_FEATURES]}")
 

@@ -35,6 +35,7 @@ from lerobot_bavo.datasets.lerobot_private import (
 )
 from lerobot_bavo.datasets.staging import load_staged
 from lerobot_bavo.datasets.video_codec import encoder_threads, rgb_encoder
+from lerobot_bavo.runtime.files import restore_default_mode
 
 logger = logging.getLogger("bavo-collect")
 
@@ -137,6 +138,7 @@ class WriterSession:
         try:
             self.ds.finalize()
             self._patches.close()
+            restore_default_mode(collector.root.glob("videos/*/*/*.mp4"))  # LeRobot's concatenated mp4s are 0600
             collector._verify_videos(self.first_index, self.kept)
             for i, b in enumerate(self.kept):
                 record.episodes.append({"episode_index": self.first_index + i, "seed": b["seed"],

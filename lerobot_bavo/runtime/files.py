@@ -9,7 +9,7 @@ system, and needing no space). A failed write removes the temporaries and leaves
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 
@@ -71,3 +71,17 @@ def write_files_atomic(files: Mapping[str | Path, str | bytes]) -> None:
 def write_file_atomic(path: str | Path, content: str | bytes) -> None:
     """`write_files_atomic` for one file."""
     write_files_atomic({path: content})
+
+
+def restore_default_mode(paths: Iterable[str | Path]) -> list[Path]:
+    """Give every file of `paths` that is private (mode 0600) the mode new files get here (`default_file_mode`);
+    returns those changed. Why: LeRobot builds a video file that grows past one episode in a `NamedTemporaryFile`
+    (mode 0600) and moves it into the dataset, so those mp4s were unreadable to other users while every other
+    file of the dataset was 0644."""
+    mode = default_file_mode()
+    changed = []
+    for path in map(Path, paths):
+        if path.is_file() and path.stat().st_mode & 0o777 == 0o600 and mode != 0o600:
+            path.chmod(mode)
+            changed.append(path)
+    return changed
