@@ -6,6 +6,7 @@
 - `recording`: one scripted-expert episode with the privileged state the teacher needs.
 - `collect`: the `bavo-collect` CLI (parallel workers, resume, dataset card, push).
 - `hub`: `load_bavo_dataset` (schema + file checks), `push_dataset`, point-cloud statistics.
+- `verify`: the metadata and committed-file checks run before a dataset is continued or copied.
 - `card`: the dataset card.
 """
 
