@@ -15,6 +15,12 @@ groot, gaussian_actor and wall_x, by contrast, load Hub models with `trust_remot
 *before anything is imported*, unless the caller opts in with `trust_remote_code=True`
 (`--trust-remote-code` on the CLIs).
 
+Sizes: a checkpoint's JSON files are read only up to 1 MiB and as UTF-8, the sizes its config asks for (sampler
+steps, horizon, widths, depths, point count, image size) are bounded (`lerobot_bavo.limits`, checked by our policy
+configs and by `env_settings`), and a truncated `model.safetensors` is named (`check_tensor_files`): before, such
+a checkpoint could hang `bavo-eval` past 6 GB or end it with a raw traceback. Messages show values from the files
+through `limits.short_repr`.
+
 Fit: a checkpoint's `config.json` records the point count, image size and object-pose input it was
 trained on; the point-cloud frame (base or camera) is recorded only by the `bavo-collect` dataset it was
 trained on (`train_config.json` -> `meta/bavo_collection.json`, following a training view back to its
@@ -29,7 +35,7 @@ import math
 from pathlib import Path
 
 from lerobot_bavo.features import OBS_ENV_STATE, OBS_IMAGE, OBS_POINT_CLOUD, POINT_CHANNELS, POINT_FRAMES
-from lerobot_bavo.limits import bound_problems
+from lerobot_bavo.limits import bound_problems, short_repr
 
 # Module prefixes whose processor step classes may be imported by dotted path.
 TRUSTED_CLASS_PREFIXES = ("lerobot.processor.", "lerobot_bavo.")
@@ -128,10 +134,11 @@ def policy_config_problems(path: str | Path) -> list[str]:
     kind = cfg.get("type")
     known = sorted(PreTrainedConfig.get_known_choices())
     if kind not in known:
-        return [f"{file}: policy type {kind!r} is not a registered LeRobot / lerobot_bavo policy ({', '.join(known)})"]
+        return [f"{file}: policy type {short_repr(kind)} is not a registered LeRobot / lerobot_bavo policy "
+                f"({', '.join(known)})"]
     problems = []
     if kind not in AUDITED_POLICY_TYPES:
-        problems.append(f"{file}: policy type {kind!r} is not audited: LeRobot types outside "
+        problems.append(f"{file}: policy type {short_repr(kind)} is not audited: LeRobot types outside "
                         f"{', '.join(AUDITED_POLICY_TYPES)} download pretrained components when built, some with "
                         "trust_remote_code=True")
     if cfg.get("use_peft"):
@@ -165,16 +172,18 @@ def processor_step_problems(path: str | Path) -> list[str]:
                 continue
             state_file = step.get("state_file")
             if state_file is not None and (not isinstance(state_file, str) or Path(state_file).name != state_file):
-                problems.append(f"{file}: step {i} state_file {state_file!r} is not a file name inside the checkpoint")
+                problems.append(f"{file}: step {i} state_file {short_repr(state_file)} is not a file name inside "
+                                "the checkpoint")
             if "registry_name" in step:
+                name = short_repr(step["registry_name"])
                 if step["registry_name"] not in registered:
-                    problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} is not a registered "
+                    problems.append(f"{file}: step {i} registry_name {name} is not a registered "
                                     "LeRobot / lerobot_bavo processor step")
                 elif step["registry_name"] in HUB_LOADING_STEPS:
-                    problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} loads a model or "
+                    problems.append(f"{file}: step {i} registry_name {name} loads a model or "
                                     "tokenizer its config names from the Hub")
                 elif _asks_for_remote_code(step):
-                    problems.append(f"{file}: step {i} registry_name {step['registry_name']!r} asks to load Hub code "
+                    problems.append(f"{file}: step {i} registry_name {name} asks to load Hub code "
                                     "(trust_remote_code is not false in its config)")
                 continue
             cls_path = step.get("class")
@@ -182,7 +191,7 @@ def processor_step_problems(path: str | Path) -> list[str]:
                 problems.append(f"{file}: step {i} names neither a registry_name nor a class")
                 continue
             if not cls_path.startswith(TRUSTED_CLASS_PREFIXES):
-                problems.append(f"{file}: step {i} class {cls_path!r} is outside "
+                problems.append(f"{file}: step {i} class {short_repr(cls_path)} is outside "
                                 f"{' / '.join(p.rstrip('.') for p in TRUSTED_CLASS_PREFIXES)}")
                 continue
             module, _, attr = cls_path.rpartition(".")
@@ -194,7 +203,7 @@ def processor_step_problems(path: str | Path) -> list[str]:
             except (ImportError, AttributeError):
                 ok = False
             if not ok:
-                problems.append(f"{file}: step {i} class {cls_path!r} is not a processor step")
+                problems.append(f"{file}: step {i} class {short_repr(cls_path)} is not a processor step")
     return problems
 
 
@@ -244,14 +253,16 @@ def env_settings(path: str | Path) -> dict:
     def shape_of(key: str) -> list[int]:
         shape = inputs[key].get("shape") if isinstance(inputs[key], dict) else None
         if not (isinstance(shape, list) and shape and all(isinstance(n, int) and n > 0 for n in shape)):
-            raise CheckpointMismatchError(f"{file}: input_features[{key!r}] has no valid shape (got {shape!r})")
+            raise CheckpointMismatchError(f"{file}: input_features[{short_repr(key)}] has no valid shape "
+                                          f"(got {short_repr(shape)})")
         return shape
 
     out: dict = {}
     if OBS_POINT_CLOUD in inputs:
         shape = shape_of(OBS_POINT_CLOUD)
         if math.prod(shape) % POINT_CHANNELS:
-            raise CheckpointMismatchError(f"{file}: observation.point_cloud shape {shape} is not N x 6 (xyz rgb)")
+            raise CheckpointMismatchError(f"{file}: observation.point_cloud shape {short_repr(shape)} is not N x 6 "
+                                          "(xyz rgb)")
         out["n_points"] = math.prod(shape) // POINT_CHANNELS
         frame = recorded_point_frame(path)
         if frame is not None:
@@ -259,7 +270,8 @@ def env_settings(path: str | Path) -> dict:
     if OBS_IMAGE in inputs:
         shape = shape_of(OBS_IMAGE)
         if len(shape) != 3 or 3 not in (shape[0], shape[-1]):
-            raise CheckpointMismatchError(f"{file}: observation.images.active shape {shape} is not CHW / HWC RGB")
+            raise CheckpointMismatchError(f"{file}: observation.images.active shape {short_repr(shape)} is not "
+                                          "CHW / HWC RGB")
         out["image_height"], out["image_width"] = (shape[1], shape[2]) if shape[0] == 3 else (shape[0], shape[1])
     out["environment_state"] = OBS_ENV_STATE in inputs
     problems = bound_problems(out)
@@ -300,7 +312,7 @@ def recorded_point_frame(path: str | Path) -> str | None:
             raise CheckpointMismatchError(f"{own} is not a valid inputs record ({exc!r}); expected "
                                           '{"point_frame": "base"} or {"point_frame": "camera"}') from exc
         if frame not in POINT_FRAMES:
-            raise CheckpointMismatchError(f"{own}: point_frame must be 'base' or 'camera', got {frame!r}")
+            raise CheckpointMismatchError(f"{own}: point_frame must be 'base' or 'camera', got {short_repr(frame)}")
         return frame
     file = Path(path) / "train_config.json"
     if not file.is_file():

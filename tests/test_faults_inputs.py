@@ -189,6 +189,7 @@ def test_bavo_view_web_listens_on_loopback_only_and_stops_its_server(small_rrd):
     printed once both ports accept connections; SIGTERM stops bavo-view and its server."""
     import os
     import re
+    import select
     import signal
     import subprocess
     import sys
@@ -199,7 +200,8 @@ def test_bavo_view_web_listens_on_loopback_only_and_stops_its_server(small_rrd):
                              "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
     try:
-        line = proc.stdout.readline()  # blocks until the URL (or the end, on failure)
+        assert select.select([proc.stdout], [], [], 120)[0], "bavo-view printed nothing within 120 s (hung?)"
+        line = proc.stdout.readline()  # the URL (or nothing: it ended)
         m = re.search(r"serving the web viewer at http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1"
                       r"%3A(\d+)%2Fproxy \(this machine only", line)
         assert m, line + proc.stderr.read() if proc.poll() is not None else line
