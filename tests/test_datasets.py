@@ -421,7 +421,8 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
                        ("state", {S.OBS_STATE, S.ACTION, S.OBS_ENV_STATE})):
         out = make_view(dataset_root, view, output_root=tmp_path / view)
         assert out.repo_id == f"{REPO}_{view}"
-        assert set(out.meta.features) - bookkeeping == keep
+        derived = {S.TEACHER_OCCLUDER} if view == "points" else set()  # the training-only occluder label
+        assert set(out.meta.features) - bookkeeping == keep | derived
         reloaded = LeRobotDataset(out.repo_id, root=tmp_path / view, video_backend="pyav")
         assert reloaded.meta.total_episodes == 2 and len(reloaded) == len(src)
         a, b = reloaded[STEPS + 3], src[STEPS + 3]  # a frame of the second episode
@@ -432,6 +433,12 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
         assert out_stats[S.OBS_STATE] == src_stats[S.OBS_STATE]
         if view == "points":  # per-channel point-cloud stats survive the copy
             assert out_stats[S.OBS_POINT_CLOUD] == src_stats[S.OBS_POINT_CLOUD]
+            # the label marks the frame's cloud points inside the occluder's box at its recorded pose
+            from lerobot_bavo.envs.occlusion import points_on_occluder
+
+            xyz = b[S.OBS_POINT_CLOUD].numpy().reshape(-1, S.POINT_CHANNELS)[:, :3]
+            expected = points_on_occluder(xyz, b[S.ANN_OCCLUDER_POSE].numpy())
+            assert a[S.TEACHER_OCCLUDER].numpy().tolist() == expected.astype(np.float32).tolist()
         with pytest.raises(FileExistsError, match="exists"):
             make_view(dataset_root, view, output_root=tmp_path / view)
         assert view_source(tmp_path / f"demo_{view}") == tmp_path / "demo"  # how make_view names its default copy
