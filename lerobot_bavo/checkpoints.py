@@ -395,14 +395,19 @@ def check_tensor_files(path: str | Path) -> None:
 
 
 def check_weights_complete(policy, path: str | Path) -> None:
-    """Raise if `model.safetensors` misses tensors of the policy or holds unknown ones (LeRobot only logs it)."""
+    """Raise if `model.safetensors` misses tensors of the policy or holds unknown ones (LeRobot only logs it).
+
+    A policy that names the tensors its inference reads (`inference_state_keys()`, ManiFlow / A-FAR) may come
+    from an inference-only checkpoint that holds just those."""
     from safetensors import safe_open
 
     file = Path(path) / "model.safetensors"
     with safe_open(str(file), framework="pt") as f:
         stored = set(f.keys())
     expected = set(policy.state_dict().keys())
-    missing, unexpected = sorted(expected - stored), sorted(stored - expected)
+    inference_keys = getattr(policy, "inference_state_keys", None)
+    required = set(inference_keys()) if callable(inference_keys) and stored < expected else expected
+    missing, unexpected = sorted(required - stored), sorted(stored - expected)
     if missing or unexpected:
         raise CheckpointMismatchError(
             f"{file} does not match the {type(policy).__name__} its config.json describes: "

@@ -20,7 +20,26 @@ import shutil
 from pathlib import Path
 
 FILES = ("config.json", "model.safetensors", "train_config.json")
-MAX_BYTES = 25 * 1024 * 1024
+MAX_BYTES = 7_000_000  # the size a shipped checkpoint may take in the repository (issue 27: at most 7 MB)
+
+
+def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
+    """Rewrite `model.safetensors` with only the tensors inference reads (ManiFlow / A-FAR: the EMA copy, or the
+    trained model when `use_ema_for_inference` is off; `ManiFlowPolicy.inference_state_keys`); loading it fills
+    the other copy. Returns (tensors kept, tensors dropped)."""
+    from safetensors.torch import load_file, save_file
+
+    used, unused = ("ema_model.", "model.") if config.get("use_ema_for_inference", True) else ("model.", "ema_model.")
+    tensors = load_file(str(file))
+    kept = {k: v for k, v in tensors.items() if not k.startswith(unused)}
+    if not any(k.startswith(used) for k in kept):
+        raise SystemExit(f"{file} holds no '{used}*' tensors; pass --all-weights to ship it whole")
+    if len(kept) < len(tensors):
+        tmp = file.with_name(file.name + ".tmp")
+        save_file(kept, str(tmp), metadata={"format": "pt"})
+        shutil.copymode(file, tmp)
+        tmp.replace(file)
+    return len(kept), len(tensors) - len(kept)
 
 
 def collection_summary(train: dict) -> dict | None:
@@ -162,6 +181,8 @@ def main() -> None:
     p.add_argument("--n-action-steps", type=int, default=None,
                    help="write this number of actions executed per policy call into the shipped config.json (an "
                         "inference setting, 1 to horizon - n_obs_steps + 1; the card says so); default: as trained")
+    p.add_argument("--all-weights", action="store_true",
+                   help="ship the whole model.safetensors (training copy and EMA) instead of the inference weights")
     args = p.parse_args()
     src = args.checkpoint if args.checkpoint else args.run / "checkpoints" / args.step / "pretrained_model"
     if not (src / "config.json").is_file():
@@ -181,6 +202,9 @@ def main() -> None:
     if not 1 <= config["n_action_steps"] <= limit:
         raise SystemExit(f"--n-action-steps must be in [1, horizon - n_obs_steps + 1] = [1, {limit}]")
     (args.output / "config.json").write_text(json.dumps(config, indent=4) + "\n")
+    if not args.all_weights:
+        kept, dropped = keep_inference_weights(args.output / "model.safetensors", config)
+        print(f"model.safetensors: kept the {kept} inference tensors, dropped {dropped}")
     from lerobot_bavo.checkpoints import recorded_point_frame, write_inputs_record
 
     frame = args.point_frame or recorded_point_frame(src)
@@ -189,7 +213,7 @@ def main() -> None:
     names.append(write_inputs_record(args.output, frame).name)
     total = sum((args.output / n).stat().st_size for n in names)
     if total > MAX_BYTES:
-        raise SystemExit(f"{args.output} is {total / 2**20:.1f} MiB > 25 MiB")
+        raise SystemExit(f"{args.output} is {total / 1e6:.1f} MB > {MAX_BYTES / 1e6:.0f} MB")
     train = json.loads((src / "train_config.json").read_text())
     if args.step.isdigit():
         train["shipped_step"] = int(args.step)

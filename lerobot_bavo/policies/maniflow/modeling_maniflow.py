@@ -257,6 +257,18 @@ def snap_binary_dims(actions: Tensor, dims: tuple[int, ...]) -> Tensor:
     return out
 
 
+def _fill_missing_copy(state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs):
+    """Load-time hook of the policies: a checkpoint that holds only one of the two weight copies (`model.*`,
+    `ema_model.*`; an inference-only checkpoint holds the EMA copy) gives its weights to the other as well."""
+    names = {"model.": "ema_model.", "ema_model.": "model."}
+    for have, lack in names.items():
+        held = [k for k in state_dict if k.startswith(prefix + have)]
+        if held and not any(k.startswith(prefix + lack) for k in state_dict):
+            for key in held:
+                state_dict[prefix + lack + key[len(prefix + have):]] = state_dict[key]
+            return
+
+
 def _invalidate_after_load(module: ManiFlowModel, incompatible_keys) -> None:
     module.invalidate_modulation_cache()
 
@@ -375,8 +387,16 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self.ema_model.eval()
         # Number of EMA updates done so far (k of the decay schedule); saved so that resuming continues it.
         self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
+        self._register_load_state_dict_pre_hook(_fill_missing_copy)
         self._queues: dict[str, deque] = {}
         self.reset()
+
+    def inference_state_keys(self) -> list[str]:
+        """The state-dict entries `select_action` reads: the EMA copy's weights (the trained model's when
+        `use_ema_for_inference` is off). A shipped checkpoint may hold only these (`scripts/ship_checkpoint.py`);
+        loading one fills the other copy from it, so it can also be fine-tuned."""
+        unused = "model." if self.config.use_ema_for_inference else "ema_model."
+        return [k for k in self.state_dict() if not k.startswith(unused)]
 
     def _make_model(self, config: ManiFlowConfig) -> ManiFlowModel:
         return ManiFlowModel(config)
