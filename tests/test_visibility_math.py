@@ -173,3 +173,21 @@ def test_accumulator_rejects_skipped_steps_and_missing_values():
         acc.record(0, {1: 0.0}, 0.0)
     with pytest.raises(ValueError):
         CVGAccumulator(horizon=0)
+
+
+def test_wilson_interval_by_hand():
+    """95 % Wilson interval: 0 of n has upper bound z^2 / (n + z^2); n of n the mirror image; 19 of 40 by hand."""
+    from lerobot_bavo.eval.metrics import wilson_interval
+
+    z2 = 1.959964 ** 2
+    low, high = wilson_interval(0, 20)
+    assert low == 0.0 and high == pytest.approx(100 * z2 / (20 + z2))
+    low, high = wilson_interval(20, 20)
+    assert high == 100.0 and low == pytest.approx(100 * 20 / (20 + z2))
+    # p = 0.475, n = 40: centre (p + z^2/80) / (1 + z^2/40), half z sqrt(p(1-p)/40 + z^2/6400) / (1 + z^2/40)
+    centre = (0.475 + z2 / 80) / (1 + z2 / 40)
+    half = 1.959964 * (0.475 * 0.525 / 40 + z2 / 6400) ** 0.5 / (1 + z2 / 40)
+    assert wilson_interval(19, 40) == pytest.approx((100 * (centre - half), 100 * (centre + half)))
+    assert wilson_interval(19, 40) == pytest.approx((32.94, 62.50), abs=0.01)
+    with pytest.raises(ValueError):
+        wilson_interval(3, 2)

@@ -151,6 +151,20 @@ def task_progress_score(depths: Sequence[int]) -> float:
     return 100.0 * sum(ds) / (NUM_MILESTONES * len(ds))
 
 
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95 % (z = 1.96) Wilson score interval of a success rate, in percent: (low, high).
+
+    Why Wilson: SR over 20-80 episodes is often near 0 or 100 %, where the normal approximation's interval
+    leaves [0, 100]; Wilson's stays inside and keeps close to its nominal coverage at these counts."""
+    if n < 1 or not 0 <= successes <= n:
+        raise ValueError(f"need 0 <= successes <= n and n >= 1, got {successes} of {n}")
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return 100.0 * float(max(0.0, centre - half)), 100.0 * float(min(1.0, centre + half))
+
+
 def joint_score(sr_percent: float, cvg_pp: float | None) -> float | None:
     """Joint = SR x CVG / 100 (Table 4), with SR in percent and CVG in pp; None if CVG is None."""
     if cvg_pp is None:
