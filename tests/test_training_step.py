@@ -1,0 +1,148 @@
+"""The training step (issue 28): the same losses and gradients as the step before its speed-ups.
+
+`training_step_reference.json` holds, for each case below, the loss terms and per-parameter gradient checksums of
+one fp32 CPU training step computed by the code at commit 729528a (before the step was reworked). The cases pin
+the random draws (seeded), give every zero-initialised layer random weights (else most gradients are exactly 0
+and compare trivially) and make the EMA teacher differ from the online network. To write the file again (only
+when the training objective changes on purpose): `python tests/test_training_step.py --write`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from lerobot.configs import FeatureType, PolicyFeature
+
+import lerobot_bavo.policies  # noqa: F401  (registers "maniflow" and "afar")
+from lerobot_bavo.policies import AfarConfig, AfarPolicy, ManiFlowConfig, ManiFlowPolicy
+
+REFERENCE = Path(__file__).with_name("training_step_reference.json")
+
+N_POINTS, STATE_DIM, ACTION_DIM, TEACHER_DIM, HORIZON = 32, 21, 21, 3, 16
+PC, STATE, ACT = "observation.point_cloud", "observation.state", "action"
+Z0, ZF, VALID = "observation.teacher.z0", "observation.teacher.zf", "observation.teacher.valid"
+OCCLUDER = "observation.teacher.occluder"
+
+TINY = dict(preset="cpu", device="cpu", point_encoder_hidden_dims=(16, 32), point_feature_dim=32,
+            state_feature_dim=16, dit_hidden_dim=32, dit_num_layers=2, dit_num_heads=2, time_freq_dim=16,
+            time_embed_hidden_dim=32, dropout=0.0)
+TINY_AFAR = dict(TINY, wqf_hidden_dim=16, wqf_num_blocks=2, wqf_num_heads=2, relation_num_points=0)
+
+# name -> (policy type, config overrides, batch options)
+CASES: dict[str, tuple[str, dict, dict]] = {
+    "maniflow": ("maniflow", {}, {}),
+    "maniflow_padding_mask": ("maniflow", {"do_mask_loss_for_padding": True}, {"pad": True}),
+    "afar": ("afar", {}, {}),
+    "afar_invalid_samples_anchor_subset_fps_prefix": (
+        "afar", {"relation_num_points": 12, "points_per_step": 24}, {"invalid": (1, 4), "flat_teacher": True}),
+    "afar_occluder_dropout": ("afar", {"occluder_dropout": 0.5}, {"occluder": True, "flat_teacher": True}),
+    "afar_current_relation_only": ("afar", {"use_future_evolution_loss": False}, {}),
+    "afar_no_fusion": ("afar", {"use_fusion": False}, {}),
+}
+
+
+def features(teacher: bool) -> tuple[dict, dict]:
+    inputs = {PC: PolicyFeature(FeatureType.STATE, (N_POINTS * 6,)),
+              STATE: PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+    if teacher:
+        inputs[Z0] = PolicyFeature(FeatureType.STATE, (N_POINTS * TEACHER_DIM,))
+    return inputs, {ACT: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
+
+
+def make_policy(kind: str, overrides: dict) -> ManiFlowPolicy:
+    torch.manual_seed(0)
+    inputs, outputs = features(teacher=kind == "afar")
+    if kind == "afar":
+        policy = AfarPolicy(AfarConfig(input_features=inputs, output_features=outputs, **{**TINY_AFAR, **overrides}))
+    else:
+        policy = ManiFlowPolicy(ManiFlowConfig(input_features=inputs, output_features=outputs,
+                                               **{**TINY, **overrides}))
+    g = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for name, p in policy.model.named_parameters():  # every zero-initialised weight gets a random value
+            if "adaln" in name or "out_mlp.2" in name or "context_pos" in name or "fusion_gate" in name:
+                p.copy_(0.2 * torch.randn(p.shape, generator=g))
+        for pe, p in zip(policy.ema_model.parameters(), policy.model.parameters(), strict=True):
+            pe.copy_(p + 0.05 * torch.randn(p.shape, generator=g))  # a teacher distinct from the student
+    return policy.train()
+
+
+def make_batch(kind: str, b: int = 8, to: int = 2, pad: bool = False, invalid: tuple = (), flat_teacher: bool = False,
+               occluder: bool = False) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(2)
+    batch = {PC: torch.rand(b, to, N_POINTS * 6, generator=g) * 2 - 1,
+             STATE: torch.rand(b, to, STATE_DIM, generator=g) * 2 - 1,
+             ACT: torch.rand(b, HORIZON, ACTION_DIM, generator=g) * 2 - 1}
+    if pad:
+        batch["action_is_pad"] = torch.zeros(b, HORIZON, dtype=torch.bool)
+        batch["action_is_pad"][::3, -5:] = True
+    if kind == "afar":
+        z0 = torch.randn(b, to, N_POINTS, TEACHER_DIM, generator=g)
+        zf = z0 + 0.3 * torch.randn(b, to, N_POINTS, TEACHER_DIM, generator=g)
+        batch[Z0], batch[ZF] = (z.flatten(2) if flat_teacher else z for z in (z0, zf))
+        if invalid:
+            valid = torch.ones(b, to, 1)
+            valid[list(invalid)] = 0.0
+            batch[VALID] = valid
+    if occluder:
+        batch[OCCLUDER] = (torch.rand(b, to, N_POINTS, generator=g) < 0.3).float()
+    return batch
+
+
+def training_step(name: str) -> dict:
+    """One fp32 step of case `name`: loss terms and, per trained parameter, (sum, norm, projection) of its grad."""
+    kind, overrides, batch_options = CASES[name]
+    policy = make_policy(kind, overrides)
+    batch = make_batch(kind, **batch_options)
+    torch.manual_seed(3)
+    loss, info = policy.forward(batch)
+    loss.backward()
+    g = torch.Generator().manual_seed(4)
+    grads = {}
+    for pname, p in policy.model.named_parameters():
+        if p.grad is None:
+            grads[pname] = None
+            continue
+        r = torch.randn(p.shape, generator=g)
+        grads[pname] = [float(p.grad.sum()), float(p.grad.norm()), float((p.grad * r).sum())]
+    return {"loss": float(loss.detach()), "info": {k: float(v) for k, v in info.items()}, "grads": grads}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_loss_and_gradients_equal_the_reference_step(name):
+    reference = json.loads(REFERENCE.read_text())[name]
+    new = training_step(name)
+    torch.testing.assert_close(new["loss"], reference["loss"], rtol=1e-5, atol=1e-7)
+    assert set(new["info"]) >= set(reference["info"]), (sorted(new["info"]), sorted(reference["info"]))
+    for key, value in reference["info"].items():
+        torch.testing.assert_close(new["info"][key], value, rtol=1e-5, atol=1e-7, msg=key)
+    assert set(new["grads"]) == set(reference["grads"])
+    for pname, ref in reference["grads"].items():
+        got = new["grads"][pname]
+        if ref is None:
+            assert got is None, pname
+            continue
+        assert got is not None, pname
+        scale = max(ref[1], 1e-12)  # the gradient's norm: sums and projections are compared relative to it
+        torch.testing.assert_close(torch.tensor(got), torch.tensor(ref), rtol=1e-4, atol=1e-5 * scale,
+                                   msg=lambda m, p=pname: f"{p}: {m}")
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] != ["--write"]:
+        raise SystemExit(__doc__)
+    torch.set_num_threads(1)
+    REFERENCE.write_text(json.dumps({name: training_step(name) for name in CASES}, indent=1) + "\n")
+    print(f"wrote {REFERENCE}")
