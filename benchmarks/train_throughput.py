@@ -196,13 +196,14 @@ def serve_steps(args) -> None:
     it = batches()
     sync = torch.cuda.synchronize if args.device == "cuda" else (lambda: None)
 
-    def step() -> float:
+    def step() -> tuple[float, float]:
+        """(wall seconds, CPU seconds of this process) of one training step."""
         sync()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         batch = pre(next(it))
         update_policy(tracker, policy, batch, opt, opt_cfg.grad_clip_norm, accelerator)
         sync()
-        return time.perf_counter() - t0
+        return time.perf_counter() - t0, time.process_time() - c0
 
     n_params = sum(p.numel() for p in policy.model.parameters())
     print(json.dumps({"ready": True, "code": lerobot_bavo.__file__, "params": n_params, "mixed_precision": mixed,
@@ -211,7 +212,8 @@ def serve_steps(args) -> None:
     for line in sys.stdin:
         cmd = line.split()
         if cmd[0] == "step":
-            print(json.dumps({"s": step()}), flush=True)
+            wall, cpu = step()
+            print(json.dumps({"s": wall, "cpu_s": cpu}), flush=True)
         elif cmd[0] == "profile":
             from torch.autograd import DeviceType
             from torch.profiler import ProfilerActivity, profile
@@ -295,12 +297,14 @@ def compare_steps(args) -> None:
             print(f"  {name}: {info['code']}, {info['params'] / 1e6:.2f} M parameters, mixed precision "
                   f"{info['mixed_precision']}, {info['optimizer']}")
         times = {name: [] for name in workers}
+        cpu_times = {name: [] for name in workers}
         for i in range(args.warmup + args.steps):
             order = ("old", "new") if i % 2 == 0 else ("new", "old")  # neither always runs right after the other
             for name in order:
-                dt = ask(name, "step")["s"]
+                answer = ask(name, "step")
                 if i >= args.warmup:
-                    times[name].append(dt)
+                    times[name].append(answer["s"])
+                    cpu_times[name].append(answer["cpu_s"])
         busy = {}
         if args.device == "cuda" and args.profile_steps > 0:
             busy = {name: ask(name, f"profile {args.profile_steps}")["busy"] for name in workers}
@@ -319,10 +323,11 @@ def compare_steps(args) -> None:
         rate[name] = args.batch / med
         extra = f", GPU busy {busy[name]:.0%}" if busy.get(name) is not None else ""
         print(f"  {name}: {med * 1e3:8.1f} ms per step of {args.batch} (quartiles {q1 * 1e3:.1f}-{q3 * 1e3:.1f}), "
-              f"{rate[name]:7.1f} samples/s{extra}")
+              f"{rate[name]:7.1f} samples/s, CPU time {statistics.median(cpu_times[name]) * 1e3:.1f} ms{extra}")
     pairs = [o / n for o, n in zip(times["old"], times["new"], strict=True)]
+    cpu_ratio = statistics.median(cpu_times["old"]) / statistics.median(cpu_times["new"])
     print(f"  ratio new / old: {rate['new'] / rate['old']:.2f}x samples/s (median of the per-round ratios "
-          f"{statistics.median(pairs):.2f}x)")
+          f"{statistics.median(pairs):.2f}x; CPU time per step old / new {cpu_ratio:.2f}x)")
 
 
 def main() -> None:
