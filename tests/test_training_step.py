@@ -140,6 +140,174 @@ def test_loss_and_gradients_equal_the_reference_step(name):
                                    msg=lambda m, p=pname: f"{p}: {m}")
 
 
+# ---- The step's mechanics: no host reads, LeRobot's logging, optimiser, mixed precision, compilation -------------
+
+
+class HostReadError(AssertionError):
+    pass
+
+
+@pytest.fixture
+def no_host_reads(monkeypatch):
+    """Make reading a tensor's value on the host (what waits for a device) raise inside the `with` block."""
+    import contextlib
+
+    @contextlib.contextmanager
+    def forbid():
+        def refuse(*args, **kwargs):
+            raise HostReadError("a tensor's value was read on the host inside the training step")
+
+        with monkeypatch.context() as m:
+            for name in ("item", "tolist", "numpy", "__bool__", "__int__", "__float__", "__index__"):
+                m.setattr(torch.Tensor, name, refuse)
+            yield
+
+    return forbid
+
+
+@pytest.mark.parametrize("name", ["maniflow_padding_mask", "afar_invalid_samples_anchor_subset_fps_prefix",
+                                  "afar_occluder_dropout"])
+def test_forward_and_backward_never_read_a_tensor_on_the_host(name, no_host_reads):
+    """Each host read inside a CUDA step waits for the GPU to run everything queued (issue 28); the step's values
+    are read once, in update()."""
+    kind, overrides, batch_options = CASES[name]
+    policy = make_policy(kind, overrides)
+    batch = make_batch(kind, **batch_options)
+    with no_host_reads():
+        loss, info = policy.forward(batch)
+        loss.backward()
+    assert all(isinstance(v, (torch.Tensor, int)) for v in info.values())
+    policy.update()
+    assert all(isinstance(v, (float, int)) for v in info.values())
+    assert info["loss"] == pytest.approx(float(loss.detach()))
+
+
+def test_nonfinite_teacher_targets_are_reported_by_update():
+    policy = make_policy("afar", {})
+    batch = make_batch("afar")
+    batch[Z0][2, -1, 5] = float("nan")
+    loss, _ = policy.forward(batch)
+    with pytest.raises(ValueError, match="teacher cache is broken"):
+        policy.update()
+    policy.forward(batch)
+    with pytest.raises(ValueError, match="teacher cache is broken"):  # or by the next forward, without update()
+        policy.forward(make_batch("afar"))
+
+
+class CpuAccelerator:
+    """What LeRobot's `update_policy` uses of `accelerate.Accelerator`, on the CPU, with autocast as Accelerate
+    sets it up for `mixed_precision` (Accelerate's state is one per process: it cannot switch precision between
+    tests)."""
+
+    def __init__(self, mixed_precision: str):
+        self.dtype = {"no": None, "bf16": torch.bfloat16}[mixed_precision]
+
+    def autocast(self):
+        return torch.autocast("cpu", dtype=self.dtype or torch.bfloat16, enabled=self.dtype is not None)
+
+    def backward(self, loss):
+        loss.backward()
+
+    def clip_grad_norm_(self, params, max_norm):
+        return torch.nn.utils.clip_grad_norm_(params, max_norm)
+
+    def unwrap_model(self, model, keep_fp32_wrapper=True):
+        return model
+
+
+def lerobot_step(policy, batch, mixed_precision: str = "no") -> dict:
+    """One step of LeRobot's own `update_policy` (as lerobot-train runs it); returns the tracked averages."""
+    from lerobot.scripts.lerobot_train import update_policy
+    from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
+
+    opt_cfg = policy.config.get_optimizer_preset()
+    opt = opt_cfg.build(policy.get_optim_params())
+    meters = {k: AverageMeter(k) for k in ("loss", "grad_norm", "lr", "update_s")}
+    tracker = MetricsTracker(8, 100, 2, meters)
+    tracker, _ = update_policy(tracker, policy, batch, opt, opt_cfg.grad_clip_norm,
+                               CpuAccelerator(mixed_precision))
+    return {k: m.avg for k, m in tracker.metrics.items()}
+
+
+def test_lerobot_update_policy_logs_every_loss_term():
+    policy = make_policy("afar", {"relation_num_points": 12})
+    logged = lerobot_step(policy, make_batch("afar", invalid=(1,)))
+    assert {"loss_fm", "loss_ct", "loss_maniflow", "loss_cur", "loss_evo", "teacher_valid", "fusion_gate_abs"} <= set(
+        logged)
+    assert logged["teacher_valid"] == 7 and logged["loss"] > 0 and int(policy.ema_step) == 1
+
+
+def test_training_preset_optimizer_is_fused_adamw_with_adamw_updates():
+    import dataclasses
+
+    import draccus
+    from lerobot.optim import OptimizerConfig
+
+    # The optimizer field of LeRobot's TrainPipelineConfig (made here with real, not string, annotations).
+    TrainConfig = dataclasses.make_dataclass("TrainConfig", [("optimizer", OptimizerConfig | None, None)])  # noqa: N806
+
+    policy = make_policy("afar", {})
+    opt_cfg = policy.config.get_optimizer_preset()
+    encoded = draccus.encode(TrainConfig(opt_cfg))  # saved with a checkpoint's train config, read back on resume
+    assert encoded["optimizer"]["type"] == "adamw_fused"
+    assert draccus.decode(TrainConfig, encoded).optimizer == opt_cfg
+    fused = opt_cfg.build(policy.get_optim_params())
+    assert fused.defaults["fused"]
+    # torch's plain AdamW on copies of the parameters, fed the same gradients: the same updates
+    groups = policy.get_optim_params()
+    copies = {id(p): torch.nn.Parameter(p.detach().clone()) for g in groups for p in g["params"]}
+    plain = torch.optim.AdamW([{**g, "params": [copies[id(p)] for p in g["params"]]} for g in groups], lr=opt_cfg.lr,
+                              betas=opt_cfg.betas, eps=opt_cfg.eps, weight_decay=opt_cfg.weight_decay, foreach=False)
+    batch = make_batch("afar")
+    for seed in (5, 6, 7):
+        torch.manual_seed(seed)
+        policy.forward(batch)[0].backward()
+        for p in policy.model.parameters():
+            copies[id(p)].grad = None if p.grad is None else p.grad.clone()
+        fused.step()
+        plain.step()
+        fused.zero_grad()
+    for name, p in policy.model.named_parameters():
+        torch.testing.assert_close(p, copies[id(p)], rtol=1e-6, atol=1e-7, msg=name)
+
+
+def test_use_amp_is_bf16_autocast_and_trains_on_cpu():
+    policy = make_policy("afar", {"use_amp": True})
+    assert policy.config.use_amp and policy.config.dtype == "bfloat16"
+    assert make_policy("afar", {}).config.dtype == "float32"
+    torch.manual_seed(3)
+    logged = lerobot_step(policy, make_batch("afar"), mixed_precision="bf16")
+    assert all(v == v and abs(v) < 1e6 for v in logged.values())  # finite
+    reference = json.loads(REFERENCE.read_text())["afar"]
+    for key in ("loss", "loss_fm", "loss_ct", "loss_cur", "loss_evo"):  # bf16: the fp32 values to ~2 digits
+        assert logged[key] == pytest.approx(reference["info"][key], rel=0.03), key
+    assert all(p.dtype == torch.float32 for p in policy.parameters())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["maniflow", "afar"])
+def test_compile_gives_the_eager_step(kind):
+    """`--policy.compile=true`: same losses and gradients as eager (compilation takes ~1 min on 2 CPU cores)."""
+    name = {"maniflow": "maniflow", "afar": "afar_invalid_samples_anchor_subset_fps_prefix"}[kind]
+    _, overrides, batch_options = CASES[name]
+    eager, compiled = make_policy(kind, overrides), make_policy(kind, {**overrides, "compile": True})
+    batch = make_batch(kind, **batch_options)
+    logged = {}
+    for policy in (eager, compiled):
+        torch.manual_seed(3)
+        loss, logged[policy] = policy.forward(batch)
+        loss.backward()
+        policy.update()
+    for key, value in logged[eager].items():
+        assert logged[compiled][key] == pytest.approx(value, rel=1e-4, abs=1e-6), key
+    for (pname, p), q in zip(compiled.model.named_parameters(), eager.model.parameters(), strict=True):
+        if q.grad is None:
+            assert p.grad is None, pname
+        else:
+            torch.testing.assert_close(p.grad, q.grad, rtol=1e-4, atol=1e-6, msg=pname)
+    assert set(compiled.state_dict()) == set(eager.state_dict())  # checkpoints unchanged
+
+
 if __name__ == "__main__":
     if sys.argv[1:] != ["--write"]:
         raise SystemExit(__doc__)

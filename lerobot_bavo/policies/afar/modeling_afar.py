@@ -125,9 +125,18 @@ class AfarPolicy(ManiFlowPolicy):
 
     config_class = AfarConfig
     name = "afar"
+    # The relational loss terms; compiled with the networks when `config.compile` (many small operations).
+    _relational_losses = staticmethod(relational_losses)
 
     def _make_model(self, config: AfarConfig) -> AfarModel:
         return AfarModel(config)
+
+    def _compiled_modules(self, model: AfarModel) -> list[nn.Module]:
+        return super()._compiled_modules(model) + [model.world_query_former]
+
+    def _compile(self, mode: str) -> None:
+        super()._compile(mode)
+        self._relational_losses = torch.compile(relational_losses, mode=mode)
 
     def get_optim_params(self) -> list[dict]:
         """Two AdamW groups: every weight as configured, and the fusion gate gamma without weight decay at
@@ -148,6 +157,7 @@ class AfarPolicy(ManiFlowPolicy):
         """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
+        self.read_step_log()  # a previous forward's log and checks, if no update() read them
         self.invalidate_modulation_cache()  # an optimiser step on these weights follows
         cfg: AfarConfig = self.config
         use_rel = cfg.uses_relational_loss
@@ -185,7 +195,7 @@ class AfarPolicy(ManiFlowPolicy):
 
         Each term is the mean of the per-sample terms over the valid samples (`observation.teacher.valid`), 0 when
         there are none: computed for every sample and masked, so that the batch's shapes never depend on its
-        values (no device sync). The teacher targets must be finite: checked here on the CPU; on an accelerator
+        values (no device sync). The teacher targets must be finite: checked here when `checks` is None, else
         the check is appended to `checks` and read with the step's logs (`ManiFlowPolicy.read_step_log`).
         """
         cfg: AfarConfig = self.config
@@ -197,7 +207,7 @@ class AfarPolicy(ManiFlowPolicy):
             finite = torch.isfinite(z).all()
             message = (f"'{key}' holds NaN or inf in this batch: the dataset's teacher cache is broken (recompute "
                        "it with lerobot_bavo.teacher, or train without the relational losses)")
-            if z.device.type == "cpu" or checks is None:
+            if checks is None:
                 if not bool(finite):
                     raise ValueError(message)
             else:
@@ -216,7 +226,8 @@ class AfarPolicy(ManiFlowPolicy):
         with torch.no_grad():
             r_t, dr_t = teacher_relations(z0, zf, eps=cfg.relation_eps)
         if cfg.use_future_evolution_loss:
-            loss_cur, loss_evo = relational_losses(h_cur, h_fut, r_t, dr_t, eps=cfg.relation_eps, per_sample=True)
+            loss_cur, loss_evo = self._relational_losses(h_cur, h_fut, r_t, dr_t, eps=cfg.relation_eps,
+                                                         per_sample=True)
             loss_cur = valid_mean(loss_cur, valid) if cfg.use_current_relation_loss else zero
             loss_evo = valid_mean(loss_evo, valid)
         else:  # L_cur only: no future tokens needed

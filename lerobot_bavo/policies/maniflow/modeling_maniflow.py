@@ -315,7 +315,7 @@ def _forget_host_ema_step(policy: ManiFlowPolicy, incompatible_keys) -> None:
     policy._ema_step_host = None
 
 
-def read_step_log(info: dict, checks: list[tuple[Tensor, str]]) -> None:
+def read_logged_values(info: dict, checks: list[tuple[Tensor, str]]) -> None:
     """Turn the 0-dim tensors of a training step's logging dict into Python floats, in place, and raise the
     message of any failed check (a 0-dim bool tensor that is False), with one device-to-host copy for all.
 
@@ -464,9 +464,22 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self._step_checks: list[tuple[Tensor, str]] = []
         self._queues: dict[str, deque] = {}
         self.reset()
+        if config.compile:
+            self._compile(config.compile_mode)
 
     def _make_model(self, config: ManiFlowConfig) -> ManiFlowModel:
         return ManiFlowModel(config)
+
+    def _compiled_modules(self, model: ManiFlowModel) -> list[nn.Module]:
+        """The sub-networks `compile` compiles (subclasses add theirs)."""
+        return [model.point_encoder, model.state_encoder, model.dit]
+
+    def _compile(self, mode: str) -> None:
+        """`torch.compile` the sub-networks of both copies in place (`nn.Module.compile`: parameter names, and so
+        checkpoints, are unchanged); see `ManiFlowConfig.compile`."""
+        for model in (self.model, self.ema_model):
+            for module in self._compiled_modules(model):
+                module.compile(mode=mode)
 
     # ---- LeRobot API ----------------------------------------------------------------------------------------
 
@@ -501,7 +514,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
     def update(self):
         """Called by lerobot-train after each optimiser step (and before it logs the step): EMA update
         ema = d * ema + (1 - d) * online, then the last forward's logging dict becomes Python floats
-        (`read_step_log`), the step's one device sync."""
+        (`read_logged_values`), the step's one device sync."""
         if self._ema_step_host is None:
             self._ema_step_host = int(self.ema_step.item())
         decay = self.ema_decay(self._ema_step_host)
@@ -518,10 +531,10 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
     def read_step_log(self) -> None:
         """Make the last training forward's logging dict Python floats and run its deferred checks (see
-        `read_step_log` and `forward`); `update` calls it, so do callers that log without updating."""
+        `read_logged_values` and `forward`); `update` calls it, so do callers that log without updating."""
         log, checks = self._step_log, self._step_checks
         self._step_log, self._step_checks = None, []
-        read_step_log(log if log is not None else {}, checks)
+        read_logged_values(log if log is not None else {}, checks)
 
     # ---- Inputs ---------------------------------------------------------------------------------------------
 
@@ -632,6 +645,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
+        self.read_step_log()  # a previous forward's log and checks, if no update() read them
         self.invalidate_modulation_cache()  # an optimiser step on these weights follows
         batch = self.training_batch(batch)
         pc, state = self._observation_tensors(batch)
@@ -641,7 +655,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         return loss, self._keep_step_log(info)
 
     def _keep_step_log(self, info: dict, checks: list[tuple[Tensor, str]] | None = None) -> dict:
-        """Remember this forward's logging dict and deferred checks for `update` (see `read_step_log`)."""
+        """Remember this forward's logging dict and deferred checks for `update` (or, failing that, the next
+        forward) to read (see `read_logged_values`)."""
         self._step_log, self._step_checks = info, list(checks or [])
         return info
 
