@@ -23,7 +23,13 @@ from lerobot_bavo.teacher.relations import (
     weighted_l1,
 )
 
-from ..maniflow.modeling_maniflow import CrossAttention, ManiFlowModel, ManiFlowPolicy, SelfAttention
+from ..maniflow.modeling_maniflow import (
+    CrossAttention,
+    ManiFlowModel,
+    ManiFlowPolicy,
+    SelfAttention,
+    read_logged_values,
+)
 from .configuration_afar import AfarConfig
 
 
@@ -149,15 +155,14 @@ class AfarPolicy(ManiFlowPolicy):
         ]
 
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
-        """L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo); logging dict (0-dim tensors until `update()`, see
-        `ManiFlowPolicy.forward`).
+        """L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo); logging dict of floats (read from the device once,
+        at the end, with the teacher-finiteness checks: `read_logged_values`).
 
         In training mode the teacher keys are required when a relational loss is enabled; in eval mode (e.g.
         validation without teacher data) the relational terms are skipped when the keys are absent.
         """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
-        self.read_step_log()  # a previous forward's log and checks, if no update() read them
         self.invalidate_modulation_cache()  # an optimiser step on these weights follows
         cfg: AfarConfig = self.config
         use_rel = cfg.uses_relational_loss
@@ -186,7 +191,7 @@ class AfarPolicy(ManiFlowPolicy):
             info.update(loss_cur=loss_cur.detach(), loss_evo=loss_evo.detach(), teacher_valid=n_valid)
         info["fusion_gate_abs"] = torch.tanh(self.model.fusion_gate.detach()).abs().mean()
         info["loss"] = loss.detach()
-        return loss, self._keep_step_log(info, checks)
+        return loss, read_logged_values(info, checks)
 
     def relational_loss(
         self, batch: dict[str, Tensor], aux: dict[str, Tensor], checks: list | None = None
@@ -196,7 +201,7 @@ class AfarPolicy(ManiFlowPolicy):
         Each term is the mean of the per-sample terms over the valid samples (`observation.teacher.valid`), 0 when
         there are none: computed for every sample and masked, so that the batch's shapes never depend on its
         values (no device sync). The teacher targets must be finite: checked here when `checks` is None, else
-        the check is appended to `checks` and read with the step's logs (`ManiFlowPolicy.read_step_log`).
+        the check is appended to `checks`, to be read with the step's logged values (`read_logged_values`).
         """
         cfg: AfarConfig = self.config
         h_cur = aux["h_cur"]  # (B, M, Dp): the first M of the N points (`points_per_step`)

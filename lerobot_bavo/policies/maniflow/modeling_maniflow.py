@@ -315,22 +315,25 @@ def _forget_host_ema_step(policy: ManiFlowPolicy, incompatible_keys) -> None:
     policy._ema_step_host = None
 
 
-def read_logged_values(info: dict, checks: list[tuple[Tensor, str]]) -> None:
-    """Turn the 0-dim tensors of a training step's logging dict into Python floats, in place, and raise the
-    message of any failed check (a 0-dim bool tensor that is False), with one device-to-host copy for all.
+def read_logged_values(info: dict, checks: list[tuple[Tensor, str]] = ()) -> dict:
+    """`info` with its 0-dim tensors turned into Python floats (in place), after raising the message of any
+    failed check (a 0-dim bool tensor that is False): one device-to-host copy for all of them.
 
-    Why: each `.item()` inside a step makes the host wait until the device has run everything queued so far,
-    and LeRobot's metrics tracker only keeps Python numbers.
+    Why: each read of a device tensor on the host (`.item()`, `bool()`) waits until the device has run everything
+    queued so far, so a training step reads its logged values once, at the end of the forward pass. Not later:
+    LeRobot's metrics tracker keeps Python numbers only, and under mixed precision Accelerate hands lerobot-train
+    a copy of the returned dict.
     """
     keys = [k for k, v in info.items() if isinstance(v, Tensor)]
     if not keys and not checks:
-        return
+        return info
     values = [info[k].detach().float().reshape(()) for k in keys] + [ok.float().reshape(()) for ok, _ in checks]
     host = torch.stack(values).tolist()
-    info.update(zip(keys, host[: len(keys)], strict=True))
     for (_, message), ok in zip(checks, host[len(keys):], strict=True):
         if not ok:
             raise ValueError(message)
+    info.update(zip(keys, host[: len(keys)], strict=True))
+    return info
 
 
 class ManiFlowModel(nn.Module):
@@ -459,9 +462,6 @@ class ManiFlowPolicy(PreTrainedPolicy):
         # device sync; loading weights resets it.
         self._ema_step_host: int | None = None
         self.register_load_state_dict_post_hook(_forget_host_ema_step)
-        # The logging dict of the last training forward and its deferred checks, read in `update`.
-        self._step_log: dict | None = None
-        self._step_checks: list[tuple[Tensor, str]] = []
         self._queues: dict[str, deque] = {}
         self.reset()
         if config.compile:
@@ -512,9 +512,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def update(self):
-        """Called by lerobot-train after each optimiser step (and before it logs the step): EMA update
-        ema = d * ema + (1 - d) * online, then the last forward's logging dict becomes Python floats
-        (`read_logged_values`), the step's one device sync."""
+        """EMA update, called by lerobot-train after each optimiser step: ema = d * ema + (1 - d) * online."""
         if self._ema_step_host is None:
             self._ema_step_host = int(self.ema_step.item())
         decay = self.ema_decay(self._ema_step_host)
@@ -527,14 +525,6 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self.ema_step += 1
         self._ema_step_host += 1
         self.invalidate_modulation_cache()
-        self.read_step_log()
-
-    def read_step_log(self) -> None:
-        """Make the last training forward's logging dict Python floats and run its deferred checks (see
-        `read_logged_values` and `forward`); `update` calls it, so do callers that log without updating."""
-        log, checks = self._step_log, self._step_checks
-        self._step_log, self._step_checks = None, []
-        read_logged_values(log if log is not None else {}, checks)
 
     # ---- Inputs ---------------------------------------------------------------------------------------------
 
@@ -638,27 +628,19 @@ class ManiFlowPolicy(PreTrainedPolicy):
     # ---- Training -------------------------------------------------------------------------------------------
 
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
-        """Consistency flow-matching loss L_FM + L_CT; returns (loss, logging dict).
+        """Consistency flow-matching loss L_FM + L_CT; returns (loss, logging dict of floats).
 
-        The logging dict holds detached 0-dim tensors until `update()` (which lerobot-train calls after the
-        optimiser step, before it logs) makes them Python floats: the step itself never waits for the device.
+        The logged values are read from the device once, at the end (`read_logged_values`).
         """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
-        self.read_step_log()  # a previous forward's log and checks, if no update() read them
         self.invalidate_modulation_cache()  # an optimiser step on these weights follows
         batch = self.training_batch(batch)
         pc, state = self._observation_tensors(batch)
         points, states, _ = self.model.observation_tokens(pc, state, need_future=False)
         loss, info = self.flow_loss(points, states, batch)
         info["loss"] = loss.detach()
-        return loss, self._keep_step_log(info)
-
-    def _keep_step_log(self, info: dict, checks: list[tuple[Tensor, str]] | None = None) -> dict:
-        """Remember this forward's logging dict and deferred checks for `update` (or, failing that, the next
-        forward) to read (see `read_logged_values`)."""
-        self._step_log, self._step_checks = info, list(checks or [])
-        return info
+        return loss, read_logged_values(info)
 
     def training_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The batch a training step reads: with `occluder_dropout` > 0 (training mode only), some samples' occluder
