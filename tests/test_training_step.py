@@ -140,6 +140,31 @@ def test_loss_and_gradients_equal_the_reference_step(name):
                                    msg=lambda m, p=pname: f"{p}: {m}")
 
 
+@pytest.mark.parametrize("dropout", [0.0, 0.3])
+def test_cross_attention_to_the_memory_equals_attention_to_its_keys_and_values(dropout, monkeypatch):
+    """`CrossAttention.attend_memory` (training) against SDPA on explicit keys and values (inference), with the
+    same attention-dropout mask."""
+    import torch.nn.functional as F  # noqa: N812
+
+    from lerobot_bavo.policies.maniflow.modeling_maniflow import CrossAttention
+
+    torch.manual_seed(0)
+    attn = CrossAttention(dim=24, heads=3, dropout=dropout, memory_dim=20).train()
+    with torch.no_grad():
+        attn.kv_proj.bias.normal_()  # biases matter: b_k shifts no score, b_v is weighted by the kept attention
+    x, memory = torch.randn(5, 4, 24), torch.randn(5, 7, 20)
+    mask = (torch.rand(5, 3, 4, 7) > dropout).float() / (1 - dropout)  # one dropout draw, used by both
+    monkeypatch.setattr(F, "dropout", lambda a, p, *args, **kwargs: a * mask.view(a.shape))
+    got = attn.attend_memory(x, memory)
+    q = attn.q(x).view(5, 4, 3, 8).transpose(1, 2)
+    k, v = attn.kv(memory)
+    weights = (q @ k.transpose(-1, -2) / 8**0.5).softmax(-1) * mask
+    expected = attn.out((weights @ v).transpose(1, 2).reshape(5, 4, 24))
+    torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+    if dropout == 0:  # and SDPA itself
+        torch.testing.assert_close(got, attn.eval()(x, attn.kv(memory)), rtol=1e-5, atol=1e-6)
+
+
 # ---- The step's mechanics: no host reads, LeRobot's logging, optimiser, mixed precision, compilation -------------
 
 

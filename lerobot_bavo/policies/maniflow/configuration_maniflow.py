@@ -177,8 +177,8 @@ class ManiFlowConfig(PreTrainedConfig):
         compile: Compile the networks with `torch.compile` (point and state encoders, DiT-X, and A-FAR's
             WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA training
             where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the first steps
-            then take minutes (compilation; again for each new batch size), and on the CPU it needs a C++
-            compiler. Weights, checkpoints and results are those of the eager networks.
+            then wait for the compiler (again for each new batch size), and on the CPU it needs a C++ compiler.
+            Parameter names, checkpoints and losses are those of the eager networks.
         compile_mode: `torch.compile`'s mode when `compile` is on: "default", "reduce-overhead" (CUDA graphs:
             also removes the launch cost of the kernels left, at the price of fixed input shapes and more GPU
             memory), "max-autotune" or "max-autotune-no-cudagraphs".

@@ -257,7 +257,8 @@ class DiTX(nn.Module):
         b, to, n, dp = points.shape
         w_points, w_states = self.context_in.weight[:, :dp], self.context_in.weight[:, dp:]
         per_step = F.linear(states, w_states, self.context_in.bias)[:, :, None]  # (B, To, 1, D)
-        per_position = self.context_pos.view(1, to, n, -1)
+        # In the projections' dtype (bf16 under autocast), which every block's attention reads it in.
+        per_position = self.context_pos.view(1, to, n, -1).to(per_step.dtype)
         return (F.linear(points, w_points) + (per_step + per_position)).view(b, to * n, -1)
 
     def modulations(self, t: Tensor, dt: Tensor) -> list[tuple[Tensor, ...]]:
