@@ -24,6 +24,9 @@ LeRobot's own `update_policy` (autocast when `--use-amp`, forward, backward, gra
 prints the GPU busy fraction of each (kernel time / wall time, torch.profiler, a few extra steps).
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py --root <points view> --repo-id <id> \\
         --baseline-commit 729528a --device cpu --preset cpu_fast --batch 64 --threads 2
+Where there is no git history (the GPU machine gets a copy of the working tree), extract the old code here and
+carry it: `mkdir -p .device/baseline && git archive 729528a lerobot_bavo | tar -x -C .device/baseline`, then
+`--baseline-dir .device/baseline` (docs/gpu.md).
 """
 
 from __future__ import annotations
@@ -56,6 +59,8 @@ def parse_args() -> argparse.Namespace:
     step = p.add_argument_group("step comparison (--baseline-commit)")
     step.add_argument("--baseline-commit", default=None,
                       help="compare the training step of this commit's policy code with the working tree's")
+    step.add_argument("--baseline-dir", default=None,
+                      help="or: a folder holding the old lerobot_bavo/ (where there is no git history)")
     step.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     step.add_argument("--preset", default="cpu_fast")
     step.add_argument("--batch", type=int, default=64)
@@ -256,20 +261,27 @@ def compare_steps(args) -> None:
     from pathlib import Path
 
     repo = Path(__file__).resolve().parent.parent
-    head = subprocess.run(["git", "-C", str(repo), "rev-parse", "--short", "HEAD"], capture_output=True,
-                          text=True).stdout.strip()
-    dirty = subprocess.run(["git", "-C", str(repo), "status", "--porcelain", "lerobot_bavo"], capture_output=True,
-                           text=True).stdout.strip()
+
+    def git(*cmd: str) -> str:  # "" where there is no git or no history (the GPU machine)
+        try:
+            return subprocess.run(["git", "-C", str(repo), *cmd], capture_output=True, text=True).stdout.strip()
+        except OSError:
+            return ""
+
+    head = git("rev-parse", "--short", "HEAD") or "no git history"
+    dirty = git("status", "--porcelain", "lerobot_bavo")
     print(f"load average at start: {os.getloadavg()[0]:.2f}; torch threads {args.threads}; device {args.device}; "
           f"policy {args.policy}, preset {args.preset}, batch {args.batch}, use_amp {args.use_amp}")
-    print(f"  old: lerobot_bavo/ of {args.baseline_commit}; new: the working tree ({head}"
+    print(f"  old: lerobot_bavo/ of {args.baseline_commit or args.baseline_dir}; new: the working tree ({head}"
           f"{', with uncommitted changes' if dirty else ''}) {' '.join(args.new_policy_arg)}")
     with tempfile.TemporaryDirectory() as tmp:
-        code = {"old": baseline_code(args.baseline_commit, tmp), "new": str(repo)}
-        argv = [a for a in sys.argv[1:]]
+        old = str(Path(args.baseline_dir).resolve()) if args.baseline_dir else baseline_code(args.baseline_commit, tmp)
+        code = {"old": old, "new": str(repo)}
+        argv = sys.argv[1:]
         workers = {}
         for name in ("old", "new"):
-            env = dict(os.environ, PYTHONPATH=code[name])
+            # first on the path, before whatever the environment has there (on the GPU machine: the wheels)
+            env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [code[name], os.environ.get("PYTHONPATH")])))
             workers[name] = subprocess.Popen([sys.executable, __file__, *argv, "--worker", name], env=env,
                                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
 
@@ -334,7 +346,7 @@ def main() -> None:
     args = parse_args()
     if args.worker:
         return serve_steps(args)
-    if args.baseline_commit:
+    if args.baseline_commit or args.baseline_dir:
         return compare_steps(args)
     import torch
 
