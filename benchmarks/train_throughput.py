@@ -264,7 +264,8 @@ def compare_steps(args) -> None:
 
     def git(*cmd: str) -> str:  # "" where there is no git or no history (the GPU machine)
         try:
-            return subprocess.run(["git", "-C", str(repo), *cmd], capture_output=True, text=True).stdout.strip()
+            return subprocess.run(["git", "-C", str(repo), *cmd], capture_output=True, text=True,
+                                  check=False).stdout.strip()
         except OSError:
             return ""
 
@@ -320,11 +321,10 @@ def compare_steps(args) -> None:
         busy = {}
         if args.device == "cuda" and args.profile_steps > 0:
             busy = {name: ask(name, f"profile {args.profile_steps}")["busy"] for name in workers}
-        for name in workers:
-            ask_quit = workers[name]
-            ask_quit.stdin.write("quit\n")
-            ask_quit.stdin.flush()
-            ask_quit.wait(timeout=60)
+        for worker in workers.values():
+            worker.stdin.write("quit\n")
+            worker.stdin.flush()
+            worker.wait(timeout=60)
 
     print(f"\nTraining step (load + normalise + LeRobot's update_policy), median of {args.steps} alternated steps "
           f"(load average at end {os.getloadavg()[0]:.2f}):")
