@@ -4,7 +4,9 @@ evaluators loading the result. Runs LeRobot's own CLIs in subprocesses, as a use
 from __future__ import annotations
 
 import json
+import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -93,3 +95,20 @@ def test_afar_trains_checkpoints_resumes_and_evaluates(points_dataset, tmp_path)
         "--eval.n_episodes=1", "--eval.batch_size=1", "--eval.use_async_envs=false", f"--output_dir={eval_out}",
     ], tmp_path)
     assert json.loads((eval_out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+
+def test_afar_trains_with_lerobot_use_amp(points_dataset, tmp_path):
+    """`--policy.use_amp=true`: lerobot-train runs the step under bf16 autocast (the config's `dtype`; on the
+    CPU as on CUDA) and the relational terms stay finite (they compute distances in fp32)."""
+    out = tmp_path / "run"
+    proc = _run(_cli("lerobot-train", "lerobot.scripts.lerobot_train") + [
+        "--policy.type=afar", "--policy.preset=cpu_fast", "--policy.points_per_step=32", "--policy.device=cpu",
+        "--policy.push_to_hub=false", "--policy.use_amp=true", "--policy.scheduler_warmup_steps=1",
+        "--dataset.repo_id=tester/bavo_tiny_points",
+        f"--dataset.root={points_dataset}", "--num_workers=0", "--batch_size=4", "--steps=2", "--save_freq=2",
+        "--log_freq=1", f"--output_dir={out}", "--wandb.enable=false", "--seed=3",
+    ], tmp_path)
+    losses = re.findall(r"\bloss_evo:(\S+)", proc.stdout + proc.stderr)
+    assert len(losses) == 2 and all(math.isfinite(float(v)) for v in losses), losses
+    saved = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
+    assert saved["policy"]["use_amp"] is True and saved["optimizer"]["type"] == "adamw_fused"

@@ -44,11 +44,15 @@ def _check_square(A: torch.Tensor, name: str) -> None:
         raise ValueError(f"{name} needs N >= 2, got N={A.shape[-1]}")
 
 
-def _upper_pairs(A: torch.Tensor) -> torch.Tensor:
-    """Strict upper triangle (i < j) of (..., N, N) as (..., N(N-1)/2), row-major order."""
+def _upper_mask(A: torch.Tensor) -> torch.Tensor:
+    """(N, N) of A's dtype: 1 on the strict upper triangle (i < j), else 0.
+
+    The sums over pairs i < j below are masked sums over the whole matrix rather than sums of the gathered
+    triangle: same values, and elementwise products instead of a gather (and a scatter in the backward pass),
+    which cost several times more on the CPU.
+    """
     n = A.shape[-1]
-    iu, ju = torch.triu_indices(n, n, offset=1, device=A.device)
-    return A[..., iu, ju]
+    return torch.ones(n, n, dtype=A.dtype, device=A.device).triu_(diagonal=1)
 
 
 def pairwise_distances(X: torch.Tensor) -> torch.Tensor:
@@ -85,7 +89,8 @@ def pairwise_distances(X: torch.Tensor) -> torch.Tensor:
 
 def _mean_pair_distance(D: torch.Tensor) -> torch.Tensor:
     """mean_{p<q} D_pq of a (..., N, N) distance matrix, shape (..., 1, 1) for broadcasting."""
-    return _upper_pairs(D).mean(dim=-1)[..., None, None]
+    n = D.shape[-1]
+    return (D * _upper_mask(D)).sum(dim=(-2, -1), keepdim=True) / (n * (n - 1) // 2)
 
 
 def _relation_from_distances(D_Y: torch.Tensor, D_X: torch.Tensor, eps: float) -> torch.Tensor:
@@ -161,31 +166,35 @@ def dynamics_weights(dR: torch.Tensor) -> torch.Tensor:
     return torch.sqrt(b.unsqueeze(-1) * b.unsqueeze(-2))
 
 
-def weighted_l1(A: torch.Tensor, w: torch.Tensor | None = None) -> torch.Tensor:
+def weighted_l1(A: torch.Tensor, w: torch.Tensor | None = None, per_sample: bool = False) -> torch.Tensor:
     """Appendix B weighted norm: ||A||_{1,w} = sum_{i<j} w_ij |A_ij| / sum_{i<j} w_ij.
 
     Only the strict upper triangle of A and w is read. With ``w=None`` the weights are uniform, so
     the value is the plain mean of |A_ij| over i < j (the paper's L_cur). With a batch dimension the
-    per-sample norms are averaged over the batch (each sample counts equally).
+    per-sample norms are averaged over the batch (each sample counts equally), or returned as they
+    are with ``per_sample=True``.
 
     Args:
         A: (N, N) or (B, N, N).
         w: None, or non-negative weights of A's shape (or (N, N), broadcast over the batch).
+        per_sample: return the (B,) per-sample norms instead of their mean.
 
     Returns:
-        Scalar tensor.
+        Scalar tensor, or (B,) (a scalar for unbatched A) with ``per_sample``.
     """
     _check_square(A, "A")
-    a = _upper_pairs(A).abs()  # (..., P)
-    if w is None:
-        per_sample = a.mean(dim=-1)
-    else:
+    upper = _upper_mask(A)
+    pairs = (-2, -1)
+    if w is not None:
         _check_square(w, "w")
         if w.shape[-1] != A.shape[-1] or (w.ndim == 3 and w.shape != A.shape):
             raise ValueError(f"w must be (N, N) or match A {tuple(A.shape)}, got {tuple(w.shape)}")
-        wp = _upper_pairs(w)
-        per_sample = (wp * a).sum(dim=-1) / wp.sum(dim=-1)
-    return per_sample.mean()
+        wu = w * upper
+        norms = (wu * A.abs()).sum(dim=pairs) / wu.sum(dim=pairs)
+    else:
+        n = A.shape[-1]
+        norms = (A.abs() * upper).sum(dim=pairs) / (n * (n - 1) // 2)
+    return norms if per_sample else norms.mean()
 
 
 def student_relations(
@@ -213,6 +222,7 @@ def relational_losses(
     R_T: torch.Tensor,
     dR_T: torch.Tensor,
     eps: float = 1e-6,
+    per_sample: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Paper Eq. 6: L_cur = ||R^S - R^T||_1 (uniform) and L_evo = ||dR^S - dR^T||_{1,w}.
 
@@ -225,9 +235,10 @@ def relational_losses(
         H_fut: same shape, predicted future student tokens.
         R_T:  (N, N) or (B, N, N) teacher current relations.
         dR_T: same shape, teacher relation evolution.
+        per_sample: return the (B,) per-sample terms instead of their batch means (see ``weighted_l1``).
 
     Returns:
-        (L_cur, L_evo), scalar tensors.
+        (L_cur, L_evo), scalar tensors (or (B,) with ``per_sample``).
     """
     R_S, dR_S = student_relations(H_cur, H_fut, eps=eps)
     if R_T.shape != R_S.shape or dR_T.shape != R_S.shape:
@@ -237,6 +248,6 @@ def relational_losses(
         )
     R_T = R_T.to(R_S.dtype)
     dR_T = dR_T.to(R_S.dtype)
-    L_cur = weighted_l1(R_S - R_T)
-    L_evo = weighted_l1(dR_S - dR_T, dynamics_weights(dR_T.detach()))
+    L_cur = weighted_l1(R_S - R_T, per_sample=per_sample)
+    L_evo = weighted_l1(dR_S - dR_T, dynamics_weights(dR_T.detach()), per_sample=per_sample)
     return L_cur, L_evo

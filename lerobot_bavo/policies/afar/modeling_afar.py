@@ -23,7 +23,13 @@ from lerobot_bavo.teacher.relations import (
     weighted_l1,
 )
 
-from ..maniflow.modeling_maniflow import CrossAttention, ManiFlowModel, ManiFlowPolicy, SelfAttention
+from ..maniflow.modeling_maniflow import (
+    CrossAttention,
+    ManiFlowModel,
+    ManiFlowPolicy,
+    SelfAttention,
+    read_logged_values,
+)
 from .configuration_afar import AfarConfig
 
 
@@ -83,10 +89,11 @@ class AfarModel(ManiFlowModel):
         self.fusion_proj = nn.Linear(config.wqf_hidden_dim, config.point_feature_dim)  # W_F
         self.fusion_gate = nn.Parameter(torch.zeros(config.point_feature_dim))  # gamma, zero-init
 
-    def observation_context(
+    def observation_tokens(
         self, point_cloud: Tensor, state: Tensor, need_future: bool = False
-    ) -> tuple[Tensor, dict[str, Tensor]]:
-        """Returns the DiT-X context and {"h_cur": H_t (B, N, Dp), "h_fut": H^F (B, N, d) when computed}."""
+    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """Point tokens (the last step's fused) and state features of the DiT-X context, and {"h_cur": H_t (B, N,
+        Dp), "h_fut": H^F (B, N, d) when computed}."""
         cfg: AfarConfig = self.config
         point_feats, state_feats = self.encode_observations(point_cloud, state)  # (B,To,N,Dp), (B,To,Ds)
         h_cur = point_feats[:, -1]
@@ -97,7 +104,7 @@ class AfarModel(ManiFlowModel):
             if cfg.use_fusion:
                 h_cond = h_cur + torch.tanh(self.fusion_gate) * self.fusion_proj(h_fut)
                 point_feats = torch.cat([point_feats[:, :-1], h_cond[:, None]], dim=1)
-        return self.build_context(point_feats, state_feats), aux
+        return point_feats, state_feats, aux
 
 
 def _teacher_tokens(x: Tensor, batch_size: int, num_points: int, key: str) -> Tensor:
@@ -124,9 +131,18 @@ class AfarPolicy(ManiFlowPolicy):
 
     config_class = AfarConfig
     name = "afar"
+    # The relational loss terms; compiled with the networks when `config.compile` (many small operations).
+    _relational_losses = staticmethod(relational_losses)
 
     def _make_model(self, config: AfarConfig) -> AfarModel:
         return AfarModel(config)
+
+    def _compiled_modules(self, model: AfarModel) -> list[nn.Module]:
+        return super()._compiled_modules(model) + [model.world_query_former]
+
+    def _compile(self, mode: str) -> None:
+        super()._compile(mode)
+        self._relational_losses = torch.compile(relational_losses, mode=mode)
 
     def get_optim_params(self) -> list[dict]:
         """Two AdamW groups: every weight as configured, and the fusion gate gamma without weight decay at
@@ -139,7 +155,8 @@ class AfarPolicy(ManiFlowPolicy):
         ]
 
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
-        """L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo); logging dict of floats.
+        """L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo); logging dict of floats (read from the device once,
+        at the end, with the teacher-finiteness checks: `read_logged_values`).
 
         In training mode the teacher keys are required when a relational loss is enabled; in eval mode (e.g.
         validation without teacher data) the relational terms are skipped when the keys are absent.
@@ -163,42 +180,49 @@ class AfarPolicy(ManiFlowPolicy):
         batch = self.training_batch(batch)
         pc, state = self._observation_tensors(batch)
         need_future = use_rel and cfg.use_future_evolution_loss
-        context, aux = self.model.observation_context(pc, state, need_future=need_future)
-        loss_mf, info = self.flow_loss(context, batch)
+        points, states, aux = self.model.observation_tokens(pc, state, need_future=need_future)
+        loss_mf, info = self.flow_loss(points, states, batch)
         loss = loss_mf
-        info["loss_maniflow"] = loss_mf.item()
+        info["loss_maniflow"] = loss_mf.detach()
+        checks = []
         if use_rel:
-            loss_cur, loss_evo, n_valid = self.relational_loss(batch, aux)
+            loss_cur, loss_evo, n_valid = self.relational_loss(batch, aux, checks)
             loss = loss + cfg.lambda_rel / 2 * (loss_cur + loss_evo)
-            info.update(loss_cur=loss_cur.item(), loss_evo=loss_evo.item(), teacher_valid=n_valid)
-        info["fusion_gate_abs"] = torch.tanh(self.model.fusion_gate).abs().mean().item()
-        info["loss"] = loss.item()
-        return loss, info
+            info.update(loss_cur=loss_cur.detach(), loss_evo=loss_evo.detach(), teacher_valid=n_valid)
+        info["fusion_gate_abs"] = torch.tanh(self.model.fusion_gate.detach()).abs().mean()
+        info["loss"] = loss.detach()
+        return loss, read_logged_values(info, checks)
 
-    def relational_loss(self, batch: dict[str, Tensor], aux: dict[str, Tensor]) -> tuple[Tensor, Tensor, int]:
-        """(L_cur, L_evo, number of valid samples) on the current step's tokens; disabled terms are 0."""
+    def relational_loss(
+        self, batch: dict[str, Tensor], aux: dict[str, Tensor], checks: list | None = None
+    ) -> tuple[Tensor, Tensor, Tensor | int]:
+        """(L_cur, L_evo, number of valid samples) on the current step's tokens; disabled terms are 0.
+
+        Each term is the mean of the per-sample terms over the valid samples (`observation.teacher.valid`), 0 when
+        there are none: computed for every sample and masked, so that the batch's shapes never depend on its
+        values (no device sync). The teacher targets must be finite: checked here when `checks` is None, else
+        the check is appended to `checks`, to be read with the step's logged values (`read_logged_values`).
+        """
         cfg: AfarConfig = self.config
         h_cur = aux["h_cur"]  # (B, M, Dp): the first M of the N points (`points_per_step`)
         b, n = h_cur.shape[0], cfg.num_points
         z0 = _teacher_tokens(batch[TEACHER_Z0], b, n, TEACHER_Z0)[:, : h_cur.shape[1]]
         zf = _teacher_tokens(batch[TEACHER_ZF], b, n, TEACHER_ZF)[:, : h_cur.shape[1]]
         for key, z in ((TEACHER_Z0, z0), (TEACHER_ZF, zf)):
-            if not bool(torch.isfinite(z).all()):
-                raise ValueError(f"'{key}' holds NaN or inf in this batch: the dataset's teacher cache is broken "
-                                 "(recompute it with lerobot_bavo.teacher, or train without the relational losses)")
+            finite = torch.isfinite(z).all()
+            message = (f"'{key}' holds NaN or inf in this batch: the dataset's teacher cache is broken (recompute "
+                       "it with lerobot_bavo.teacher, or train without the relational losses)")
+            if checks is None:
+                if not bool(finite):
+                    raise ValueError(message)
+            else:
+                checks.append((finite, message))
         n = h_cur.shape[1]
         zero = h_cur.new_zeros(())
-        idx = None
+        valid = None
         if TEACHER_VALID in batch:
             valid = batch[TEACHER_VALID].reshape(b, -1)[:, -1] > 0.5
-            if not bool(valid.all()):
-                idx = valid.nonzero(as_tuple=True)[0]
-                if idx.numel() == 0:
-                    return zero, zero, 0
         h_fut = aux.get("h_fut")
-        if idx is not None:
-            h_cur, z0, zf = h_cur[idx], z0[idx], zf[idx]
-            h_fut = None if h_fut is None else h_fut[idx]
         m = cfg.relation_num_points
         if m and m < n and self.training:  # random anchor subset (CPU preset)
             pts = torch.randperm(n, device=h_cur.device)[:m]
@@ -207,11 +231,23 @@ class AfarPolicy(ManiFlowPolicy):
         with torch.no_grad():
             r_t, dr_t = teacher_relations(z0, zf, eps=cfg.relation_eps)
         if cfg.use_future_evolution_loss:
-            loss_cur, loss_evo = relational_losses(h_cur, h_fut, r_t, dr_t, eps=cfg.relation_eps)
-            if not cfg.use_current_relation_loss:
-                loss_cur = zero
+            loss_cur, loss_evo = self._relational_losses(h_cur, h_fut, r_t, dr_t, eps=cfg.relation_eps,
+                                                         per_sample=True)
+            loss_cur = valid_mean(loss_cur, valid) if cfg.use_current_relation_loss else zero
+            loss_evo = valid_mean(loss_evo, valid)
         else:  # L_cur only: no future tokens needed
             hn = F.normalize(h_cur, dim=-1)
-            loss_cur = weighted_l1(relation_matrix(hn, hn, eps=cfg.relation_eps) - r_t)
+            loss_cur = valid_mean(weighted_l1(relation_matrix(hn, hn, eps=cfg.relation_eps) - r_t, per_sample=True),
+                                  valid)
             loss_evo = zero
-        return loss_cur, loss_evo, int(h_cur.shape[0])
+        return loss_cur, loss_evo, b if valid is None else valid.sum()
+
+
+def valid_mean(per_sample: Tensor, valid: Tensor | None) -> Tensor:
+    """Mean of a (B,) per-sample loss over the samples where `valid` (B,) bool is True; 0 when none is (and
+    the plain mean when `valid` is None). Invalid samples' values are replaced, not multiplied, by 0, so that
+    a non-finite value there cannot reach the loss."""
+    if valid is None:
+        return per_sample.mean()
+    kept = torch.where(valid, per_sample, torch.zeros_like(per_sample))
+    return kept.sum() / valid.sum().clamp_min(1).to(per_sample.dtype)

@@ -4,7 +4,6 @@ import math
 from dataclasses import dataclass, field
 
 from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
-from lerobot.optim import AdamWConfig
 from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
@@ -14,6 +13,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 # `validate_features`).
 from lerobot_bavo.sim.constants import ACTION_DIM, ACTION_NAMES, GRIPPER_INDICES
 from lerobot_bavo.features import OBS_ENV_STATE, OBS_POINT_CLOUD, POSE_CHANNELS, TEACHER_PREFIX
+from lerobot_bavo.policies.optim import FusedAdamWConfig
 
 # Size presets. `paper` is ManiFlow's DiT-X (768 wide, 12 layers, 8 heads; ~180 M parameters) with the
 # xyz+rgb PointNet (6->64->128->256->512->128). `cpu` keeps the PointNet and shrinks DiT-X to 192 wide x 3 layers
@@ -174,6 +174,18 @@ class ManiFlowConfig(PreTrainedConfig):
             target, a position cue a policy can learn instead of the target (docs/results/occluder_shortcut.md).
             Needs the training-only label `observation.teacher.occluder` of the `points` training view;
             0 (default) turns it off. Inference is unchanged.
+        compile: Compile the networks with `torch.compile` (point and state encoders, DiT-X, and A-FAR's
+            WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA training
+            where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the first steps
+            then wait for the compiler (again for each new batch size), and on the CPU it needs a C++ compiler.
+            Parameter names, checkpoints and losses are those of the eager networks.
+        compile_mode: `torch.compile`'s mode when `compile` is on: "default", "reduce-overhead" (CUDA graphs:
+            also removes the launch cost of the kernels left, at the price of fixed input shapes and more GPU
+            memory), "max-autotune" or "max-autotune-no-cudagraphs".
+
+    Mixed precision: LeRobot's `--policy.use_amp=true` runs the training step under bf16 autocast (the `dtype`
+    property below tells lerobot-train so; without it LeRobot would pick fp16 with loss scaling on CUDA).
+    The relational losses compute distances in fp32 whatever the autocast.
     """
 
     # Input / output structure.
@@ -234,6 +246,10 @@ class ManiFlowConfig(PreTrainedConfig):
     # Training-time augmentation.
     occluder_dropout: float = 0.0
 
+    # Training speed (docs/gpu.md).
+    compile: bool = False
+    compile_mode: str = "default"
+
     def __post_init__(self):
         super().__post_init__()
         if self.preset not in MANIFLOW_PRESETS:
@@ -284,8 +300,16 @@ class ManiFlowConfig(PreTrainedConfig):
             raise ValueError(f"`consistency_t_bins` must be >= 1. Got {self.consistency_t_bins}.")
 
     # LeRobot interface.
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(
+    @property
+    def dtype(self) -> str:
+        """Precision of lerobot-train's autocast, read by lerobot-train: "bfloat16" when `use_amp`, else
+        "float32". Why: lerobot-train takes the autocast type from a policy's `dtype` when it has one, else from
+        `use_amp` with torch's default for the device, fp16 on CUDA, which needs loss scaling (a host-device
+        sync per step) and has a narrower range than bf16."""
+        return "bfloat16" if self.use_amp else "float32"
+
+    def get_optimizer_preset(self) -> FusedAdamWConfig:
+        return FusedAdamWConfig(
             lr=self.optimizer_lr,
             betas=self.optimizer_betas,
             eps=self.optimizer_eps,

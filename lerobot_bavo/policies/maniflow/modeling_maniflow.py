@@ -138,6 +138,36 @@ class CrossAttention(nn.Module):
         y = F.scaled_dot_product_attention(q, kv[0], kv[1], dropout_p=self.dropout if self.training else 0.0)
         return self.out(_merge_heads(y))
 
+    def attend_memory(self, x: Tensor, memory: Tensor) -> Tensor:
+        """`forward(x, self.kv(memory))` for x (B, H, D) and memory (B, L, Dm), without computing the memory's
+        keys and values.
+
+        Why: the score of a query q against the key W_k m + b_k is (W_k^T q) . m + q . b_k, and the
+        attention-weighted sum of the values W_v m + b_v is (A m) W_v^T + b_v (A's rows sum to 1; with attention
+        dropout they are summed and weight b_v). So the H queries are taken into the memory's space instead of
+        the L memory rows into key and value space: per sample and head O(H D Dm + H L Dm) multiply-adds instead
+        of O(L D Dm + H L D / heads), fewer when H is small next to L (DiT-X: 16 action tokens attend to
+        To * N context tokens). Used where the keys and values would serve one call only (training); inference
+        reuses `kv(memory)` over its flow steps.
+        """
+        b, h_len, _ = x.shape
+        heads = self.heads
+        w_k, w_v = self.kv_proj.weight.view(2, heads, -1, memory.shape[-1]).unbind(0)  # (heads, D/heads, Dm) each
+        b_k, b_v = self.kv_proj.bias.view(2, heads, -1).unbind(0)  # (heads, D/heads) each
+        q = self.q(x).view(b, h_len, heads, -1) * w_k.shape[1] ** -0.5  # SDPA's 1/sqrt(head width)
+        q_memory = torch.einsum("bihe,hem->bhim", q, w_k).reshape(b, heads * h_len, -1)  # (B, heads * H, Dm)
+        q_bias = torch.einsum("bihe,he->bhi", q, b_k).reshape(b, heads * h_len, 1)
+        attn = torch.baddbmm(q_bias, q_memory, memory.transpose(1, 2)).softmax(dim=-1)  # (B, heads * H, L)
+        dropout = self.training and self.dropout > 0
+        if dropout:
+            attn = F.dropout(attn, self.dropout)
+        y = torch.einsum("bhim,hem->bihe", torch.bmm(attn, memory).view(b, heads, h_len, -1), w_v)
+        if dropout:
+            y = y + attn.sum(dim=-1).view(b, heads, h_len).transpose(1, 2)[..., None] * b_v
+        else:
+            y = y + b_v
+        return self.out(y.reshape(b, h_len, -1))
+
 
 def split_modulation(modulation: Tensor) -> tuple[Tensor, ...]:
     """adaln(c) (B, 9 D) -> (shift, 1 + scale, gate) x 3, each (B, 1, D)."""
@@ -167,12 +197,16 @@ class DiTXBlock(nn.Module):
         )
         self.adaln = nn.Sequential(nn.SiLU(), nn.Linear(dim, 9 * dim))
 
-    def forward(self, x: Tensor, modulation: tuple[Tensor, ...], kv: tuple[Tensor, Tensor]) -> Tensor:
+    def forward(
+        self, x: Tensor, modulation: tuple[Tensor, ...], kv: tuple[Tensor, Tensor] | Tensor
+    ) -> Tensor:
         """x (B, H, D) action tokens; modulation = split_modulation(adaln(c)), batch B or 1; kv per-head context
-        keys/values."""
+        keys/values, or the projected context (B, L, D) itself (`CrossAttention.attend_memory`)."""
         sh1, sc1, g1, sh2, sc2, g2, sh3, sc3, g3 = modulation
         x = torch.addcmul(x, g1, self.self_attn(torch.addcmul(sh1, self.norm1(x), sc1)))
-        x = torch.addcmul(x, g2, self.cross_attn(torch.addcmul(sh2, self.norm2(x), sc2), kv))
+        h = torch.addcmul(sh2, self.norm2(x), sc2)
+        x = torch.addcmul(x, g2, self.cross_attn.attend_memory(h, kv) if isinstance(kv, Tensor)
+                          else self.cross_attn(h, kv))
         x = torch.addcmul(x, g3, self.mlp(torch.addcmul(sh3, self.norm3(x), sc3)))
         return x
 
@@ -215,6 +249,18 @@ class DiTX(nn.Module):
         ctx = self.context_in(context) + self.context_pos
         return [blk.cross_attn.kv(ctx) for blk in self.blocks]
 
+    def project_context(self, points: Tensor, states: Tensor) -> Tensor:
+        """The projected context context_in(c) + pos (B, To * N, D) of the context c made of point tokens `points`
+        (B, To, N, Dp) and state features `states` (B, To, Ds), i.e. of `ManiFlowModel.build_context(points,
+        states)`: the state part of context_in is applied once per step rather than once per token, and the
+        concatenated (B, To * N, Dp + Ds) context is never written."""
+        b, to, n, dp = points.shape
+        w_points, w_states = self.context_in.weight[:, :dp], self.context_in.weight[:, dp:]
+        per_step = F.linear(states, w_states, self.context_in.bias)[:, :, None]  # (B, To, 1, D)
+        # In the projections' dtype (bf16 under autocast), which every block's attention reads it in.
+        per_position = self.context_pos.view(1, to, n, -1).to(per_step.dtype)
+        return (F.linear(points, w_points) + (per_step + per_position)).view(b, to * n, -1)
+
     def modulations(self, t: Tensor, dt: Tensor) -> list[tuple[Tensor, ...]]:
         """AdaLN-Zero (shift, 1 + scale, gate) x 3 of every block, (B, 1, D) each, from c = proj([emb(t), emb(dt)])."""
         c = self.cond_proj(torch.cat([self.t_embed(t), self.dt_embed(dt)], dim=-1))
@@ -225,16 +271,21 @@ class DiTX(nn.Module):
         x: Tensor,
         t: Tensor,
         dt: Tensor,
-        context_kv: list[tuple[Tensor, Tensor]],
+        context_kv: list[tuple[Tensor, Tensor]] | Tensor,
         modulations: list[tuple[Tensor, ...]] | None = None,
     ) -> Tensor:
         """x (B, H, A) noisy normalised chunk, t and dt (B,) -> velocity (B, H, A).
 
-        `modulations` (from `self.modulations(t, dt)`, batch B or 1) may be passed to skip their computation.
+        `context_kv`: every block's cross-attention keys/values (`encode_context`, worth it when reused over
+        flow steps), or the projected context (B, L, D) (`project_context`) that every block attends to without
+        keys and values (one pass, as in training). `modulations` (from `self.modulations(t, dt)`, batch B or 1)
+        may be passed to skip their computation.
         """
         h = self.action_in(x) + self.action_pos
         if modulations is None:
             modulations = self.modulations(t, dt)
+        if isinstance(context_kv, Tensor):
+            context_kv = [context_kv] * len(self.blocks)
         for blk, kv, mod in zip(self.blocks, context_kv, modulations, strict=True):
             h = blk(h, mod, kv)
         return self.out_mlp(self.out_norm(h))
@@ -273,6 +324,31 @@ def _invalidate_after_load(module: ManiFlowModel, incompatible_keys) -> None:
     module.invalidate_modulation_cache()
 
 
+def _forget_host_ema_step(policy: ManiFlowPolicy, incompatible_keys) -> None:
+    policy._ema_step_host = None
+
+
+def read_logged_values(info: dict, checks: list[tuple[Tensor, str]] = ()) -> dict:
+    """`info` with its 0-dim tensors turned into Python floats (in place), after raising the message of any
+    failed check (a 0-dim bool tensor that is False): one device-to-host copy for all of them.
+
+    Why: each read of a device tensor on the host (`.item()`, `bool()`) waits until the device has run everything
+    queued so far, so a training step reads its logged values once, at the end of the forward pass. Not later:
+    LeRobot's metrics tracker keeps Python numbers only, and under mixed precision Accelerate hands lerobot-train
+    a copy of the returned dict.
+    """
+    keys = [k for k, v in info.items() if isinstance(v, Tensor)]
+    if not keys and not checks:
+        return info
+    values = [info[k].detach().float().reshape(()) for k in keys] + [ok.float().reshape(()) for ok, _ in checks]
+    host = torch.stack(values).tolist()
+    for (_, message), ok in zip(checks, host[len(keys):], strict=True):
+        if not ok:
+            raise ValueError(message)
+    info.update(zip(keys, host[: len(keys)], strict=True))
+    return info
+
+
 class ManiFlowModel(nn.Module):
     """Point encoder + state MLP -> (B, To * N, Dp + Ds) context -> DiT-X."""
 
@@ -306,12 +382,20 @@ class ManiFlowModel(nn.Module):
         tokens = torch.cat([point_feats, state_feats[:, :, None].expand(-1, -1, n, -1)], dim=-1)
         return tokens.reshape(b, to * n, tokens.shape[-1])
 
+    def observation_tokens(
+        self, point_cloud: Tensor, state: Tensor, need_future: bool = False
+    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """The context's parts, point tokens (B, To, N, Dp) and state features (B, To, Ds), plus intermediate
+        features (subclasses add theirs and may change the point tokens)."""
+        point_feats, state_feats = self.encode_observations(point_cloud, state)
+        return point_feats, state_feats, {"h_cur": point_feats[:, -1]}
+
     def observation_context(
         self, point_cloud: Tensor, state: Tensor, need_future: bool = False
     ) -> tuple[Tensor, dict[str, Tensor]]:
-        """Context tokens for DiT-X plus intermediate features (subclasses add theirs)."""
-        point_feats, state_feats = self.encode_observations(point_cloud, state)
-        return self.build_context(point_feats, state_feats), {"h_cur": point_feats[:, -1]}
+        """Context tokens (B, To * N, Dp + Ds) for DiT-X plus intermediate features (see `observation_tokens`)."""
+        point_feats, state_feats, aux = self.observation_tokens(point_cloud, state, need_future=need_future)
+        return self.build_context(point_feats, state_feats), aux
 
     def schedule_modulations(
         self, num_steps: int, device: torch.device, dtype: torch.dtype
@@ -388,8 +472,14 @@ class ManiFlowPolicy(PreTrainedPolicy):
         # Number of EMA updates done so far (k of the decay schedule); saved so that resuming continues it.
         self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
         self._register_load_state_dict_pre_hook(_fill_missing_copy)
+        # Its value on the host (None: read it from the buffer at the next update), so that `update` needs no
+        # device sync; loading weights resets it.
+        self._ema_step_host: int | None = None
+        self.register_load_state_dict_post_hook(_forget_host_ema_step)
         self._queues: dict[str, deque] = {}
         self.reset()
+        if config.compile:
+            self._compile(config.compile_mode)
 
     def inference_state_keys(self) -> list[str]:
         """The state-dict entries `select_action` reads: the EMA copy's weights (the trained model's when
@@ -400,6 +490,17 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
     def _make_model(self, config: ManiFlowConfig) -> ManiFlowModel:
         return ManiFlowModel(config)
+
+    def _compiled_modules(self, model: ManiFlowModel) -> list[nn.Module]:
+        """The sub-networks `compile` compiles (subclasses add theirs)."""
+        return [model.point_encoder, model.state_encoder, model.dit]
+
+    def _compile(self, mode: str) -> None:
+        """`torch.compile` the sub-networks of both copies in place (`nn.Module.compile`: parameter names, and so
+        checkpoints, are unchanged); see `ManiFlowConfig.compile`."""
+        for model in (self.model, self.ema_model):
+            for module in self._compiled_modules(model):
+                module.compile(mode=mode)
 
     # ---- LeRobot API ----------------------------------------------------------------------------------------
 
@@ -433,13 +534,17 @@ class ManiFlowPolicy(PreTrainedPolicy):
     @torch.no_grad()
     def update(self):
         """EMA update, called by lerobot-train after each optimiser step: ema = d * ema + (1 - d) * online."""
-        decay = self.ema_decay(int(self.ema_step.item()))
+        if self._ema_step_host is None:
+            self._ema_step_host = int(self.ema_step.item())
+        decay = self.ema_decay(self._ema_step_host)
         ema_params = list(self.ema_model.parameters())
         params = [p.detach() for p in self.model.parameters()]
         torch._foreach_lerp_(ema_params, params, 1.0 - decay)
-        for b_ema, b in zip(self.ema_model.buffers(), self.model.buffers(), strict=True):
-            b_ema.copy_(b)
+        ema_buffers, buffers = list(self.ema_model.buffers()), list(self.model.buffers())
+        if buffers:
+            torch._foreach_copy_(ema_buffers, buffers)
         self.ema_step += 1
+        self._ema_step_host += 1
         self.invalidate_modulation_cache()
 
     # ---- Inputs ---------------------------------------------------------------------------------------------
@@ -544,16 +649,19 @@ class ManiFlowPolicy(PreTrainedPolicy):
     # ---- Training -------------------------------------------------------------------------------------------
 
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
-        """Consistency flow-matching loss L_FM + L_CT; returns (loss, logging dict of floats)."""
+        """Consistency flow-matching loss L_FM + L_CT; returns (loss, logging dict of floats).
+
+        The logged values are read from the device once, at the end (`read_logged_values`).
+        """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
         self.invalidate_modulation_cache()  # an optimiser step on these weights follows
         batch = self.training_batch(batch)
         pc, state = self._observation_tensors(batch)
-        context, _ = self.model.observation_context(pc, state, need_future=False)
-        loss, info = self.flow_loss(context, batch)
-        info["loss"] = loss.item()
-        return loss, info
+        points, states, _ = self.model.observation_tokens(pc, state, need_future=False)
+        loss, info = self.flow_loss(points, states, batch)
+        info["loss"] = loss.detach()
+        return loss, read_logged_values(info)
 
     def training_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The batch a training step reads: with `occluder_dropout` > 0 (training mode only), some samples' occluder
@@ -570,8 +678,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
         keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
         return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p)
 
-    def flow_loss(self, context: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """ManiFlow's objective on a shared context (B, L, Dc) (the encoder runs once, with gradients).
+    def flow_loss(self, points: Tensor, states: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """ManiFlow's objective on a shared context, given as its point tokens (B, To, N, Dp) and state features
+        (B, To, Ds) (`ManiFlowModel.observation_tokens`; the encoder runs once, with gradients).
 
         The first B - int((1 - flow_batch_ratio) B) samples: flow matching, t ~ scale * Beta(a, b), dt = 0,
         target x1 - x0. The rest: consistency, t ~ U{0, 1/K, ..., (K-1)/K}, dt ~ U(0, 1), t' = min(t + dt, 1);
@@ -588,9 +697,13 @@ class ManiFlowPolicy(PreTrainedPolicy):
         dev, dtype = x1.device, x1.dtype
 
         x0 = torch.randn_like(x1)
-        beta = torch.distributions.Beta(
-            torch.tensor(cfg.flow_t_beta_a, device=dev), torch.tensor(cfg.flow_t_beta_b, device=dev)
-        )
+        # Parameters made on the device (a tensor copied from the host waits for the device) and checked here on
+        # the host (the distribution's own check reads them back from the device).
+        if not (cfg.flow_t_beta_a > 0 and cfg.flow_t_beta_b > 0):
+            raise ValueError(f"`flow_t_beta_a` and `flow_t_beta_b` must be > 0. Got {cfg.flow_t_beta_a}, "
+                             f"{cfg.flow_t_beta_b}.")
+        beta = torch.distributions.Beta(torch.full((), cfg.flow_t_beta_a, device=dev),
+                                        torch.full((), cfg.flow_t_beta_b, device=dev), validate_args=False)
         t_fm = cfg.flow_t_scale * beta.sample((n_fm,)).to(dtype)
         t_ct = torch.randint(0, cfg.consistency_t_bins, (n_ct,), device=dev).to(dtype) / cfg.consistency_t_bins
         dt_ct = torch.rand(n_ct, device=dev, dtype=dtype)
@@ -598,7 +711,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         dt = torch.cat([torch.zeros_like(t_fm), dt_ct])
         x_t = (1 - t[:, None, None]) * x0 + t[:, None, None] * x1
 
-        v = self.model.dit(x_t, t, dt, self.model.dit.encode_context(context))
+        v = self.model.dit(x_t, t, dt, self.model.dit.project_context(points, states))
 
         mask = None
         if cfg.do_mask_loss_for_padding and "action_is_pad" in batch:
@@ -618,11 +731,11 @@ class ManiFlowPolicy(PreTrainedPolicy):
                 t2 = (t_ct + dt_ct).clamp(max=1.0)
                 x_t2 = (1 - t2[:, None, None]) * x0c + t2[:, None, None] * x1c
                 ema_dit = self.ema_model.dit
-                v_hat = ema_dit(x_t2, t2, dt_ct, ema_dit.encode_context(context[n_fm:].detach()))
+                v_hat = ema_dit(x_t2, t2, dt_ct, ema_dit.project_context(points[n_fm:], states[n_fm:]))
                 x1_hat = x_t2 + (1 - t2[:, None, None]) * v_hat
                 target_ct = (x1_hat - x_t[n_fm:]) / (1 - t_ct[:, None, None])
             loss_ct = mse(v[n_fm:], target_ct, slice(n_fm, b))
         else:
             loss_ct = x1.new_zeros(())
         loss = loss_fm + loss_ct
-        return loss, {"loss_fm": loss_fm.item(), "loss_ct": loss_ct.item()}
+        return loss, {"loss_fm": loss_fm.detach(), "loss_ct": loss_ct.detach()}

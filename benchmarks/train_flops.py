@@ -1,0 +1,60 @@
+"""Matrix-multiply FLOPs of one ManiFlow / A-FAR training step per sample (forward, backward and the EMA teacher's
+pass), counted by torch.utils.flop_counter on the CPU with a synthetic batch of BAVO's shapes (256 xyz+rgb points,
+21-dim state and action, 3-dim teacher features). Counts what a GPU must compute whatever its speed; elementwise
+operations are not counted.
+
+Run it for the code on the path; for an older commit put that commit's `lerobot_bavo/` first on the path:
+    python benchmarks/train_flops.py --preset paper
+    mkdir -p /tmp/base && git archive 729528a lerobot_bavo | tar -x -C /tmp/base
+    PYTHONPATH=/tmp/base python benchmarks/train_flops.py --preset paper
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+N_POINTS, STATE_DIM, ACTION_DIM, TEACHER_DIM = 256, 21, 21, 3
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--policy", default="afar", choices=["afar", "maniflow"])
+    p.add_argument("--preset", default="paper")
+    p.add_argument("--batch", type=int, default=8, help="samples counted (FLOPs are reported per sample)")
+    args = p.parse_args()
+
+    import torch
+    from lerobot.configs import FeatureType, PolicyFeature
+    from torch.utils.flop_counter import FlopCounterMode
+
+    import lerobot_bavo
+    from lerobot_bavo.policies import AfarConfig, AfarPolicy, ManiFlowConfig, ManiFlowPolicy
+
+    inputs = {"observation.point_cloud": PolicyFeature(FeatureType.STATE, (N_POINTS * 6,)),
+              "observation.state": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+    outputs = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
+    config_cls, policy_cls = (AfarConfig, AfarPolicy) if args.policy == "afar" else (ManiFlowConfig, ManiFlowPolicy)
+    torch.manual_seed(0)
+    policy = policy_cls(config_cls(input_features=inputs, output_features=outputs, preset=args.preset,
+                                   device="cpu")).train()
+    b, to, h = args.batch, policy.config.n_obs_steps, policy.config.horizon
+    batch = {"observation.point_cloud": torch.rand(b, to, N_POINTS * 6) * 2 - 1,
+             "observation.state": torch.rand(b, to, STATE_DIM) * 2 - 1,
+             "action": torch.rand(b, h, ACTION_DIM) * 2 - 1,
+             "observation.teacher.z0": torch.randn(b, to, N_POINTS * TEACHER_DIM)}
+    batch["observation.teacher.zf"] = batch["observation.teacher.z0"] + 0.1 * torch.randn_like(
+        batch["observation.teacher.z0"])
+    counter = FlopCounterMode(display=False)
+    with counter:
+        loss, _ = policy.forward(batch)
+        loss.backward()
+    n_params = sum(p.numel() for p in policy.model.parameters())
+    print(f"{lerobot_bavo.__file__}: {args.policy}, preset {args.preset} ({n_params / 1e6:.1f} M parameters), "
+          f"{counter.get_total_flops() / b / 1e9:.3g} GFLOP per training sample (forward + backward + EMA teacher)")
+
+
+if __name__ == "__main__":
+    main()
