@@ -1,7 +1,21 @@
-"""lerobot-bavo: BAVO-Bench, demonstrations, and the ManiFlow / A-FAR policies for LeRobot."""
+"""lerobot-bavo: BAVO-Bench, demonstrations, and the ManiFlow / A-FAR policies for LeRobot.
+
+`import lerobot_bavo` is light (MuJoCo, gymnasium, numpy: no LeRobot, no PyTorch): it registers the gym
+ids `lerobot_bavo/<GymName>-v0`, so that every CLI answers `--help` at once and worker processes that only
+step envs and experts start quickly.
+
+LeRobot's env type "bavo" and policy types "maniflow" / "afar" import LeRobot and PyTorch (seconds), so
+they are registered explicitly, where they are needed, and never by guessing from the command line:
+
+- LeRobot's CLIs (`lerobot-train`, `lerobot-eval`) import the plugin shim `lerobot_env_bavo`, which calls
+  `register_lerobot_types()`;
+- importing `lerobot_bavo.envs.configs` or `lerobot_bavo.policies` registers what they define (LeRobot's
+  own convention: a config class registers itself where it is defined);
+- loading a checkpoint (`eval.rollout.LeRobotPolicyAgent`, `checkpoints`) registers them first;
+- the workers of a `runtime.pool.WorkerPool` register them unless the pool is `light_import=True`.
+"""
 
 import os
-import sys
 
 # Headless EGL rendering by default; must be set before MuJoCo is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -9,22 +23,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 # Gym ids `lerobot_bavo/<GymName>-v0` (light: MuJoCo and gymnasium, no PyTorch).
 import lerobot_bavo.envs  # noqa: E402, F401
 
-# LeRobot's env type "bavo" and policy types "maniflow" and "afar": these import LeRobot and PyTorch (seconds).
-# They are skipped where nothing needs them: `bavo-view`, and the worker processes of `bavo-eval` /
-# `bavo-collect` on Ray (BAVO_LIGHT_IMPORT=1, set by `runtime.ray_pool.worker_env_vars`), which step envs and
-# experts; a worker that loads a checkpoint registers them then (`LeRobotPolicyAgent`, `register_lerobot_types`).
-# `bavo-collect`'s own process needs LeRobot's dataset writer but none of these types; importing it lazily (when
-# the dataset is opened) lets its worker processes start their set-up meanwhile (issue 11).
-_LIGHT_IMPORT = (os.environ.get("BAVO_LIGHT_IMPORT") == "1"
-                 or os.path.basename(sys.argv[0] if sys.argv else "") in ("bavo-view", "bavo-collect"))
-
 
 def register_lerobot_types() -> None:
     """Register the "bavo" env type and the "maniflow" / "afar" policy types with LeRobot (idempotent: each
-    module is imported once)."""
+    module is imported once). Imports LeRobot and PyTorch."""
     import lerobot_bavo.envs.configs  # noqa: F401
     import lerobot_bavo.policies  # noqa: F401
-
-
-if not _LIGHT_IMPORT:
-    register_lerobot_types()

@@ -360,11 +360,13 @@ def load_policy_config(path: str | Path):
     from lerobot.configs.policies import PreTrainedConfig
 
     import lerobot_bavo.policies  # noqa: F401  (registers maniflow / afar)
+    from lerobot_bavo.datasets.lerobot_private import config_tempfiles_removed
 
     path = Path(path)
     _read_json(path / "config.json")  # size, encoding and JSON first, with their own messages
     try:
-        return PreTrainedConfig.from_pretrained(path)
+        with config_tempfiles_removed():  # LeRobot's reader leaves a tmpXXXX.json behind otherwise
+            return PreTrainedConfig.from_pretrained(path)
     except Exception as e:  # draccus reports an unknown policy type as a bare "invalid choice", and a
         # config's own check (e.g. n_action_steps out of range) only in the chain below its wrapper error
         cause = e

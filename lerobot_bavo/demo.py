@@ -21,7 +21,11 @@ import os
 import time
 from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from lerobot_bavo.runtime.process import one_thread_unless_set
+
+# Before numpy / torch load: on a busy 2-core machine torch's default thread pool (one thread per core)
+# slows a policy episode down many times over; the user's own setting wins.
+one_thread_unless_set()
 
 # The checkpoint shipped in the repository (see its README.md for how it was trained and how to push it).
 SHIPPED_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "afar_cube_handoff"
@@ -58,11 +62,16 @@ def run_demo(task: str, condition: str, seeds: list[int], output_dir: Path, agen
             agent = make_agent("expert", env)
         else:
             agent = make_agent(str(policy_path), env, trust_remote_code=trust_remote_code)
+        one_thread_unless_set()  # torch is loaded by now (the afar agent): its pool, too
         records = []
-        for seed in tqdm(seeds, desc=f"{name} on {task}/{condition}", unit="episode"):
+        for i, seed in enumerate(seeds):
             path = output_dir / f"{name}_{task}_{condition}_seed{seed}.mp4" if video else None
             t0 = time.perf_counter()
-            record = run_episode(env, agent, seed, video_path=path, video_every=video_every)
+            # one bar per episode, in control steps, so the progress moves from the first second
+            with tqdm(total=env.max_episode_steps, unit="step", leave=False,
+                      desc=f"{name} on {task}/{condition}: episode {i + 1}/{len(seeds)} (seed {seed})") as bar:
+                record = run_episode(env, agent, seed, video_path=path, video_every=video_every,
+                                     on_step=lambda info, bar=bar: bar.update(1))
             record["wall_s"] = time.perf_counter() - t0
             records.append(record)
             tqdm.write(f"{name:6s} seed {seed}: {'success' if record['success'] else 'failure'} "

@@ -4,6 +4,8 @@
 # scripts/test.sh; safe to run by hand.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Another apt (unattended upgrades, a second set-up) holds its lock: wait for it instead of failing.
+APT_WAIT="-o DPkg::Lock::Timeout=300"
 
 find_python() {
     local candidates=()
@@ -40,7 +42,7 @@ fi
 if ! ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1'; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
         echo "[setup] installing libegl1 libgl1-mesa-dri (headless MuJoCo rendering)"
-        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libegl1 libgl1-mesa-dri
+        apt-get update -qq $APT_WAIT && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $APT_WAIT libegl1 libgl1-mesa-dri
     else
         echo "error: libEGL not found; install the Debian packages libegl1 and libgl1-mesa-dri." >&2
         exit 1
@@ -52,7 +54,7 @@ fi
 if ! ldconfig -p 2>/dev/null | grep -q 'libavutil.so'; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
         echo "[setup] installing ffmpeg (FFmpeg libraries for LeRobot's torchcodec video decoding)"
-        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq ffmpeg
+        apt-get update -qq $APT_WAIT && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $APT_WAIT ffmpeg
     else
         echo "warning: FFmpeg libraries not found; install the Debian package ffmpeg (LeRobot's CLIs need it" \
              "to decode videos, and print a torchcodec traceback without it)." >&2

@@ -2,12 +2,14 @@
 # The default test suite (excludes tests marked `slow`; run those with: scripts/test.sh -m slow).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Another apt (unattended upgrades, a second set-up) holds its lock: wait for it instead of failing.
+APT_WAIT="-o DPkg::Lock::Timeout=300"
 bash scripts/setup.sh
 # The browser tests (bavo-teleop's page, driven by key presses) need Debian's chromium; they skip, saying so,
 # without it. Installed here, not in setup.sh, because only the tests need it.
 if ! command -v chromium >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
     echo "[test] installing chromium (headless browser tests of bavo-teleop)"
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null || \
+    apt-get update -qq $APT_WAIT && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $APT_WAIT chromium >/dev/null || \
         echo "warning: chromium could not be installed; the browser tests will be skipped" >&2
 fi
 export OPENBLAS_NUM_THREADS=1 OPENBLAS_CORETYPE="${OPENBLAS_CORETYPE:-Haswell}" MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1

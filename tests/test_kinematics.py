@@ -1,7 +1,7 @@
 """Forward kinematics against a hand-written chain, IK round trips, and rendered depth/segmentation
 against analytic ray-plane intersections.
 
-The hand-written FK composes the documented offsets and joint axes (constants.py / FACTS.md)
+The hand-written FK composes the documented offsets and joint axes (constants.py, from AV-ALOHA)
 with plain numpy rotations, independently of MuJoCo's kinematics.
 """
 

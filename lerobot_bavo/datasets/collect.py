@@ -8,7 +8,7 @@ How it works:
   schedule) and the expert (timing jitter). The dataset holds the first `--episodes` successful
   seeds, in seed order; unsuccessful attempts are discarded and counted.
 - Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no LeRobot or
-  PyTorch import: `BAVO_LIGHT_IMPORT=1`) record an episode, compute its teacher targets and stage it as
+  PyTorch import: `WorkerPool(light_import=True)`) record an episode, compute its teacher targets and stage it as
   `<root>/.bavo_staging/seed_*.npz` plus a `seed_*.json` marker written last (atomic renames). The pool
   starts first, with one warm-up job per worker (`staging.warm_job`: build the recorder), and this process
   imports LeRobot only when it opens the dataset (the `bavo-collect` command imports `lerobot_bavo` without

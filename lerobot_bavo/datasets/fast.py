@@ -31,6 +31,13 @@ import numpy as np
 import pyarrow as pa
 import torch
 
+from lerobot_bavo.datasets.lerobot_private import (
+    dataset_is_finalized,
+    install_dataset_class,
+    reader_image_transforms,
+    reader_metadata,
+)
+
 logger = logging.getLogger(__name__)
 
 ENV_OPT_OUT = "BAVO_FAST_DATASET"
@@ -61,7 +68,7 @@ def supports(dataset) -> str | None:
     reader = getattr(dataset, "reader", None)
     if reader is None or getattr(reader, "hf_dataset", None) is None:
         return "its data is not loaded"
-    if getattr(reader, "_image_transforms", None) is not None:
+    if reader_image_transforms(reader) is not None:
         return "it has image transforms"
     for name, field in zip(reader.hf_dataset.data.schema.names, reader.hf_dataset.data.schema.types):
         t = field
@@ -87,7 +94,7 @@ class InMemoryReader:
         self._reader = reader
         table = reader.hf_dataset.data
         self.columns = {name: torch.from_numpy(column_array(table.column(name))) for name in table.column_names}
-        meta = reader._meta
+        meta = reader_metadata(reader)
         # Episode bounds in absolute frame indices, as LeRobot's `_get_query_indices` reads them.
         eps = meta.episodes
         self._ep_from = torch.as_tensor(np.asarray(eps["dataset_from_index"], dtype=np.int64))
@@ -179,7 +186,6 @@ def in_memory_dataset_class():
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     class InMemoryLeRobotDataset(LeRobotDataset):
-        _bavo_in_memory = True
 
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
@@ -187,7 +193,7 @@ def in_memory_dataset_class():
 
         def __getitems__(self, indices: list[int]) -> list[dict]:
             """A DataLoader batch in one gather (torch's fetcher calls this instead of `__getitem__` per index)."""
-            if isinstance(self.reader, InMemoryReader) and (self.writer is None or self._is_finalized):
+            if isinstance(self.reader, InMemoryReader) and (self.writer is None or dataset_is_finalized(self)):
                 return self.reader.get_items(indices)
             return [self[i] for i in indices]
 
@@ -210,14 +216,10 @@ def install_lerobot_train_hook() -> bool:
 
     The factory module (`lerobot.datasets.factory`) looks `LeRobotDataset` up as a module global when it
     builds the train (and eval) datasets; it is replaced there, and only there, by `InMemoryLeRobotDataset`,
-    which swaps the reader after LeRobot's own constructor ran. Idempotent; does nothing with
+    which swaps the reader after LeRobot's own constructor ran (`lerobot_private.install_dataset_class`). Idempotent; does nothing with
     `BAVO_FAST_DATASET=0`.
     """
     if os.environ.get(ENV_OPT_OUT, "1").strip().lower() in ("0", "false", "no", "off"):
         return False
-    from lerobot.datasets import factory
-
-    if getattr(factory.LeRobotDataset, "_bavo_in_memory", False):
-        return True
-    factory.LeRobotDataset = in_memory_dataset_class()
+    install_dataset_class(in_memory_dataset_class())
     return True

@@ -1,4 +1,4 @@
-"""Every use of LeRobot 0.6.1's private dataset internals, in one place.
+"""Every use of LeRobot 0.6.1's private internals, in one place (datasets, config loading, policies).
 
 Why they are needed: `bavo-collect` appends episodes through LeRobot's public writer API
 (`LeRobotDataset.create / resume`, `add_frame`, `save_episode`, `finalize`). What that API does not
@@ -31,6 +31,17 @@ offer:
    its in-memory buffers); only LeRobot's `embed_images` pass would write it into a file, and that pass is
    skipped within the block (item 2; it is a no-op whenever the shortcut applies).
 
+6. Loading a policy config without litter. `PreTrainedConfig.from_pretrained` copies config.json into a
+   `tempfile.NamedTemporaryFile(delete=False)` for draccus and never removes it: every checkpoint load left a
+   `tmpXXXX.json` in the temp folder. `config_tempfiles_removed` gives LeRobot's config module a `tempfile`
+   whose temporary files go to a private folder, deleted when the block ends.
+7. The fast data path (`datasets.fast`): a `DatasetReader`'s metadata (`_meta`) and image transforms
+   (`_image_transforms`), a dataset's `_is_finalized`, and the dataset factory's module global
+   `LeRobotDataset`, which `install_dataset_class` replaces (`reader_metadata`, `reader_image_transforms`,
+   `dataset_is_finalized`).
+8. A chunking policy's queue of actions still to execute (`_queues["action"]`, ACT's `_action_queue`),
+   which `bavo-eval --rerun` records (`policy_action_queue`).
+
 `check_private_api()` names every field and attribute used here; a test calls it, so an upgrade of
 LeRobot that renames one fails there with a message saying which, not deep inside a collection.
 """
@@ -45,6 +56,9 @@ import numpy as np
 WRITER_FIELDS = ("_pq_writer", "_finalized")
 META_FIELDS = ("_metadata_buffer", "_pq_writer", "_finalized")
 DATASET_FIELDS = ("_is_finalized",)
+READER_FIELDS = ("_meta", "_image_transforms")  # DatasetReader internals the fast data path reads
+CONFIG_MODULE_ATTRIBUTES = ("tempfile",)  # lerobot.configs.policies
+FACTORY_MODULE_ATTRIBUTES = ("LeRobotDataset",)  # lerobot.datasets.factory
 WRITER_MODULE_ATTRIBUTES = ("embed_images", "compute_episode_stats", "datasets")
 STATS_MODULE_ATTRIBUTES = ("RunningQuantileStats",)  # lerobot.datasets.compute_stats, read by the encoder thread
 STATS_FIELDS = ("_count", "_mean", "_mean_of_squares", "_min", "_max", "_histograms", "_bin_edges",
@@ -62,10 +76,14 @@ def check_private_api(dataset=None) -> None:
     (`dataset`, from `create` or `resume`) is given, since they exist only on instances.
     """
     import lerobot
+    import lerobot.configs.policies as config_mod
     import lerobot.datasets.compute_stats as stats_mod
     import lerobot.datasets.dataset_writer as writer_mod
+    import lerobot.datasets.factory as factory_mod
 
     missing = [f"lerobot.datasets.dataset_writer.{a}" for a in WRITER_MODULE_ATTRIBUTES if not hasattr(writer_mod, a)]
+    missing += [f"lerobot.configs.policies.{a}" for a in CONFIG_MODULE_ATTRIBUTES if not hasattr(config_mod, a)]
+    missing += [f"lerobot.datasets.factory.{a}" for a in FACTORY_MODULE_ATTRIBUTES if not hasattr(factory_mod, a)]
     missing += [f"lerobot.datasets.compute_stats.{a}" for a in STATS_MODULE_ATTRIBUTES if not hasattr(stats_mod, a)]
     if hasattr(stats_mod, "RunningQuantileStats"):
         probe = stats_mod.RunningQuantileStats()
@@ -81,6 +99,9 @@ def check_private_api(dataset=None) -> None:
                 missing.append("DatasetWriter.cancel_pending_videos")
         missing += [f"LeRobotDatasetMetadata.{f}" for f in META_FIELDS if meta is None or not hasattr(meta, f)]
         missing += [f"LeRobotDataset.{f}" for f in DATASET_FIELDS if not hasattr(dataset, f)]
+        reader = getattr(dataset, "reader", None)
+        if reader is not None:  # a writer session may have no reader yet
+            missing += [f"DatasetReader.{f}" for f in READER_FIELDS if not hasattr(reader, f)]
     if missing:
         raise LeRobotInternalsChanged(
             f"LeRobot {getattr(lerobot, '__version__', '?')} lacks {', '.join(missing)}, which "
@@ -249,3 +270,65 @@ def arrow_episode_tables():
             yield
     finally:
         writer_mod.datasets = original
+
+
+@contextlib.contextmanager
+def config_tempfiles_removed():
+    """Within the block, the temporary files LeRobot's `configs.policies` creates (one json per
+    `PreTrainedConfig.from_pretrained`, never deleted) go to a private folder that is removed afterwards.
+    Only that module's reference to `tempfile` is replaced, by a copy whose `NamedTemporaryFile` defaults
+    `dir` to the folder."""
+    import functools
+    import shutil
+    import tempfile
+    import types
+
+    import lerobot.configs.policies as config_mod
+
+    folder = tempfile.mkdtemp(prefix="bavo-config-")
+    original = config_mod.tempfile
+    proxy = types.ModuleType("tempfile")
+    proxy.__dict__.update(tempfile.__dict__)
+    proxy.NamedTemporaryFile = functools.partial(tempfile.NamedTemporaryFile, dir=folder)
+    config_mod.tempfile = proxy
+    try:
+        yield
+    finally:
+        config_mod.tempfile = original
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def reader_metadata(reader):
+    """The `LeRobotDatasetMetadata` a `DatasetReader` reads episodes from (`reader._meta`)."""
+    return reader._meta
+
+
+def reader_image_transforms(reader):
+    """A `DatasetReader`'s image transforms, or None (`reader._image_transforms`)."""
+    return getattr(reader, "_image_transforms", None)
+
+
+def dataset_is_finalized(dataset) -> bool:
+    """Whether a `LeRobotDataset`'s writer session is finalized (`dataset._is_finalized`)."""
+    return bool(dataset._is_finalized)
+
+
+def install_dataset_class(cls) -> bool:
+    """Make LeRobot's dataset factory (`lerobot-train`) build `cls` wherever it builds a `LeRobotDataset`: the
+    factory looks the class up as its module global, replaced here (and only here). Idempotent: returns False
+    when `cls` is already installed."""
+    from lerobot.datasets import factory
+
+    if factory.LeRobotDataset is cls:
+        return False
+    factory.LeRobotDataset = cls
+    return True
+
+
+def policy_action_queue(policy):
+    """The policy's queue of actions still to execute from its last chunk (LeRobot's `_queues["action"]` or
+    ACT's `_action_queue`), or None."""
+    queues = getattr(policy, "_queues", None)
+    if isinstance(queues, dict) and "action" in queues:
+        return queues["action"]
+    return getattr(policy, "_action_queue", None)

@@ -1,7 +1,7 @@
 """The one feature schema of BAVO-Bench datasets (LeRobot v3.0), and helpers to reshape it back.
 
 Every array feature is stored **flat** (1-D): LeRobot 0.6.1's `delete_episodes` / `merge_datasets`
-fail on 2-D features (FACTS.md, Sec. 4), so (N, C) arrays are stored row-major as (N * C,).
+fail on 2-D features, so (N, C) arrays are stored row-major as (N * C,).
 `unflatten_point_cloud` / ... (over `lerobot_bavo.features.unflatten_points`) give them back as
 (..., N, C); they accept both the flat layout (dataset, (..., N * C)) and the unflattened one (env,
 (..., N, C)). The keys and `ObservationSettings` (which fixes the schema) live in `lerobot_bavo.features`.

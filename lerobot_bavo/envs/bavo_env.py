@@ -1,7 +1,7 @@
 """`BavoEnv`: one BAVO-Bench task under one visibility condition, as a gymnasium Env.
 
 Control: absolute joint-position targets (21) at 25 Hz; each control step runs 20 physics steps
-of 2 ms with the actuator targets linearly interpolated from the previous target (FACTS.md).
+of 2 ms with the actuator targets linearly interpolated from the previous target (as AV-ALOHA).
 Observation (copies, never views into simulator memory):
     agent_pos (21,) float32: left 6 joints + gripper, right 6 + gripper, camera arm 7 (rad; the
         grippers as normalised opening in [0, 1], 1 = open);

@@ -410,8 +410,12 @@ def main(argv: list[str] | None = None) -> None:
     for name, low in (("episodes", 1), ("seed", 0), ("workers", 1), ("videos", 0)):
         if getattr(args, name) < low:
             parser.error(f"--{name} must be >= {low}, got {getattr(args, name)}")
+    from lerobot_bavo import register_lerobot_types
     from lerobot_bavo.checkpoints import CheckpointMismatchError, UntrustedCheckpointError
 
+    # After the arguments are checked (`--help` and usage errors answer at once), before any worker is forked:
+    # the workers inherit LeRobot's "bavo" / "maniflow" / "afar" types instead of each importing them.
+    register_lerobot_types()
     if args.grid is not None:
         if (problem := executor_problem(args.executor, args.ray_address, args.workers)) is not None:
             raise SystemExit(f"bavo-eval: {problem}")

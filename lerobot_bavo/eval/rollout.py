@@ -8,9 +8,12 @@ first frames after every occlusion event with a red border.
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
+from lerobot_bavo.datasets.lerobot_private import policy_action_queue
 
 EXPERT_POLICIES = ("expert", "expert-frozen-camera")
 
@@ -58,7 +61,7 @@ class LeRobotPolicyAgent:
         from lerobot_bavo import register_lerobot_types
         from lerobot_bavo.envs.configs import BavoEnvConfig
 
-        register_lerobot_types()  # a light worker process (BAVO_LIGHT_IMPORT=1) has not registered them yet
+        register_lerobot_types()  # a light worker process has not registered them yet
 
         path = Path(path)
         if not (path / "config.json").is_file():
@@ -119,28 +122,19 @@ class LeRobotPolicyAgent:
         batch["task"] = [self.task_description]
         batch = self.pre(batch)
         with self._torch.inference_mode():
-            queue = _action_queue(self.policy)
+            queue = policy_action_queue(self.policy)
             fresh = queue is not None and len(queue) == 0  # this call predicts a new chunk
             if self._generator is not None:
                 action = self.policy.select_action(batch, generator=self._generator)
             else:
                 action = self.policy.select_action(batch)
-            queue = _action_queue(self.policy)
+            queue = policy_action_queue(self.policy)
             self.last_chunk = None
             if fresh and queue is not None:  # the chunk just predicted: this action and those queued after it
                 chunk = self._torch.stack([action.reshape(-1), *(a.reshape(-1) for a in queue)])
                 self.last_chunk = self.post(chunk).cpu().numpy().astype(np.float64)
         action = self.post(action)
         return action.squeeze(0).cpu().numpy().astype(np.float64)
-
-
-def _action_queue(policy):
-    """The policy's queue of actions still to execute from its last chunk (LeRobot's `_queues["action"]` or
-    ACT's `_action_queue`), or None."""
-    queues = getattr(policy, "_queues", None)
-    if isinstance(queues, dict) and "action" in queues:
-        return queues["action"]
-    return getattr(policy, "_action_queue", None)
 
 
 def env_kwargs_for_policy(policy: str) -> dict:
@@ -171,9 +165,11 @@ def mark_event(frame: np.ndarray, width: int = 6) -> np.ndarray:
 
 
 def run_episode(env, agent, seed: int, video_path: Path | None = None, video_every: int = 2,
-                mark_steps: int = 12, rerun_path: Path | None = None) -> dict:
+                mark_steps: int = 12, rerun_path: Path | None = None,
+                on_step: Callable[[dict], None] | None = None) -> dict:
     """Roll out one seeded episode; returns its record (and writes a video, and a rerun recording of every
-    step built from the observations and `info` only (`lerobot_bavo.viz.recorder`), if asked)."""
+    step built from the observations and `info` only (`lerobot_bavo.viz.recorder`), if asked). `on_step(info)`
+    runs after every step, e.g. to show progress within an episode (`bavo-demo`)."""
     obs, info = env.reset(seed=seed)
     agent.reset(seed=seed)
     frames = []
@@ -199,6 +195,8 @@ def run_episode(env, agent, seed: int, video_path: Path | None = None, video_eve
         if recorder is not None:
             recorder.add(obs, info, action, getattr(agent, "last_chunk", None))
         obs, reward, terminated, truncated, info = env.step(action)
+        if on_step is not None:
+            on_step(info)
         if visibility is not None:
             visibility.append(_visibility(info))
         occ = info.get("occlusion")

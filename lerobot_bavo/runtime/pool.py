@@ -11,9 +11,10 @@ to keep the set-up between jobs without rebuilding it per episode.
   uses a `ProcessPoolExecutor` of that many processes, started with `start_method` ("spawn" by
   default: a fresh interpreter, no GL context or torch thread pool inherited from the parent; `None`
   is the platform's default, "fork" on Linux, which `bavo-eval` keeps so that a job function replaced
-  in a `python -c` script reaches its workers). `light_import=True` starts spawned workers with
-  `BAVO_LIGHT_IMPORT=1` (no LeRobot / PyTorch import, ~2.8 s of CPU per worker on these machines) for jobs
-  that never touch a policy, such as `bavo-collect`'s expert episodes.
+  in a `python -c` script reaches its workers). Each worker registers LeRobot's "bavo" / "maniflow" /
+  "afar" types in its initializer (`lerobot_bavo.register_lerobot_types`) unless `light_import=True`:
+  then it imports neither LeRobot nor PyTorch (seconds of CPU per worker) for jobs that never touch a
+  policy, such as `bavo-collect`'s expert episodes.
 - `ProcessCache`: one keyed slot per process. A job asks for the set-up of its key; a different key
   closes the old set-up and builds the new one. It is a module-level object in the job's module because
   that is the only state a pool worker keeps between jobs; it is never shared across processes.
@@ -36,7 +37,6 @@ class WorkerPool:
             raise ValueError(f"workers must be >= 0, got {workers}")
         self.workers = workers
         self._executor: cf.ProcessPoolExecutor | None = None
-        self._restore_env: tuple[str, str | None] | None = None
         if workers == 0:
             from lerobot_bavo.runtime.process import limit_threads
 
@@ -46,16 +46,9 @@ class WorkerPool:
 
             os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             os.environ.setdefault("OMP_NUM_THREADS", "1")
-            if light_import and start_method == "spawn":
-                # A spawned worker imports lerobot_bavo while unpickling its first call, before any initializer
-                # runs, so the switch has to be in the environment it inherits. The pool spawns its processes
-                # as jobs arrive, so it stays set in this process until `shutdown` (this process has long
-                # finished its own imports; it only reads the variable when lerobot_bavo is first imported).
-                self._restore_env = ("BAVO_LIGHT_IMPORT", os.environ.get("BAVO_LIGHT_IMPORT"))
-                os.environ["BAVO_LIGHT_IMPORT"] = "1"
             self._executor = cf.ProcessPoolExecutor(
                 max_workers=workers, mp_context=multiprocessing.get_context(start_method),
-                initializer=init_worker, initargs=(os.getpid(),))
+                initializer=init_worker, initargs=(os.getpid(), not light_import))
 
     def submit(self, fn: Callable[[dict], Any], job: dict) -> cf.Future:
         """A future of `fn(job)`; in-process, `fn` runs now and the future is already done."""
@@ -78,13 +71,6 @@ class WorkerPool:
         """Stop the workers; `cancel` drops queued jobs (after an error: don't run them first)."""
         if self._executor is not None:
             self._executor.shutdown(wait=wait, cancel_futures=cancel)
-        if self._restore_env is not None:
-            name, value = self._restore_env
-            self._restore_env = None
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
 
     def __enter__(self) -> WorkerPool:
         return self

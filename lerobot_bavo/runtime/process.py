@@ -64,6 +64,23 @@ def limit_threads() -> None:
         torch.set_num_threads(1)
 
 
+def one_thread_unless_set() -> None:
+    """One BLAS / OpenMP / torch thread for an interactive command (`bavo-demo`) unless the user chose a
+    count: OMP_NUM_THREADS (and OPENBLAS_NUM_THREADS) given in the environment are kept, and torch, if it is
+    loaded, then keeps its own choice too. Call it before numpy / torch load, and again once torch is loaded."""
+    global _USER_THREADS
+    if _USER_THREADS is None:
+        _USER_THREADS = "OMP_NUM_THREADS" in os.environ
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    torch = sys.modules.get("torch")
+    if torch is not None and not _USER_THREADS:
+        torch.set_num_threads(1)
+
+
+_USER_THREADS: bool | None = None  # whether OMP_NUM_THREADS was set before one_thread_unless_set first ran
+
+
 RETAINED_ALLOCATION_BYTES = 1 << 30  # allocations up to 1 GiB come from (and go back to) the heap
 RETAINED_FREE_BYTES = 2**31 - 1  # free heap memory kept for reuse before glibc returns any to the OS
 
@@ -93,33 +110,74 @@ def retain_freed_memory() -> bool:
         mallopt(M_TRIM_THRESHOLD, RETAINED_FREE_BYTES))
 
 
-def init_worker(parent: int | None = None) -> None:
-    """Pool-worker initializer (`initializer=init_worker, initargs=(os.getpid(),)`): `limit_threads`,
-    `retain_freed_memory` and `exit_with_parent(parent)`. Only for pool workers: in the main process the watch
+def init_worker(parent: int | None = None, register_lerobot: bool = False) -> None:
+    """Pool-worker initializer (`initializer=init_worker, initargs=(os.getpid(), register)`): `limit_threads`,
+    `retain_freed_memory`, `exit_with_parent(parent)` and, with `register_lerobot`, LeRobot's env and policy
+    types (`lerobot_bavo.register_lerobot_types`). Only for pool workers: in the main process the watch
     would end a run started with nohup as soon as its shell exits."""
     exit_with_parent(parent)
     limit_threads()
     retain_freed_memory()
+    if register_lerobot:
+        from lerobot_bavo import register_lerobot_types
+
+        register_lerobot_types()
 
 
 class LockedError(RuntimeError):
     """Another run holds the lock of this folder."""
 
 
-def exclusive_lock(folder: str | Path, tool: str):
+class FolderLock:
+    """A held `exclusive_lock`: `close()` (or leaving a `with` block) releases it and removes its lock file,
+    so finished runs leave nothing beside their output folders."""
+
+    def __init__(self, handle, path: Path):
+        self._handle = handle
+        self.path = path
+
+    def close(self) -> None:
+        """Release the lock; idempotent. The file is removed while still locked, so a run that opened it
+        meanwhile finds, once it holds the lock, that the path no longer names its file and starts again
+        (`exclusive_lock`): two runs never both hold one folder."""
+        if self._handle is None:
+            return
+        try:
+            self.path.unlink(missing_ok=True)
+        except OSError:  # a read-only parent: the stale (unlocked) file is harmless
+            pass
+        self._handle.close()
+        self._handle = None
+
+    def __enter__(self) -> FolderLock:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def exclusive_lock(folder: str | Path, tool: str) -> FolderLock:
     """An exclusive, non-blocking advisory lock for writing `folder`, keyed on its resolved real path.
 
     The lock file sits beside the folder (`.<name>.<tool>.lock` in its resolved parent), so every spelling
-    of the same folder (symlinks, `..`) gets the same lock. Returns the open handle; closing it (or the
-    process dying) releases the lock. Raises `LockedError` if another process holds it."""
+    of the same folder (symlinks, `..`) gets the same lock. Returns a `FolderLock`; closing it releases the
+    lock and removes the file (the process dying releases it too, leaving the file). Raises `LockedError` if
+    another process holds it."""
     import fcntl
 
     real = Path(folder).resolve()
     real.parent.mkdir(parents=True, exist_ok=True)
-    handle = open(real.parent / f".{real.name}.{tool}.lock", "w")
-    try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
+    path = real.parent / f".{real.name}.{tool}.lock"
+    while True:
+        handle = open(path, "a")
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.close()
+            raise LockedError(f"another {tool} is writing {real}") from None
+        try:  # the holder before us may have removed the file after we opened it: lock the current one
+            if os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino:
+                return FolderLock(handle, path)
+        except FileNotFoundError:
+            pass
         handle.close()
-        raise LockedError(f"another {tool} is writing {real}") from None
-    return handle

@@ -54,16 +54,14 @@ def import_ray():
 
 def worker_env_vars() -> dict[str, str]:
     """Environment of every Ray worker this pool starts: one BLAS / OpenMP thread (2-core machines: the
-    variables must be set before numpy loads, hence not in the task), headless GL, the package's light import
-    (its LeRobot registrations wait until a job loads a checkpoint: a fresh Ray worker, unlike a forked local
-    one, would otherwise import PyTorch for every expert episode), and this package's source folder ahead of
-    the driver's PYTHONPATH."""
+    variables must be set before numpy loads, hence not in the task), headless GL, and this package's source folder ahead of the
+    driver's PYTHONPATH. (A Ray worker registers LeRobot's types only when a job loads a checkpoint: `import
+    lerobot_bavo` is light.)"""
     source = str(Path(__file__).resolve().parents[2])
     path = [source] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and p != source]
     return {"OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1"),
             "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
             "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-            "BAVO_LIGHT_IMPORT": "1",  # no LeRobot / PyTorch import unless a job loads a checkpoint (~3 s a worker)
             "PYTHONPATH": os.pathsep.join(path)}
 
 

@@ -1,4 +1,4 @@
-"""Robot constants mirrored from the public AV-ALOHA / ALOHA 2 numbers (see FACTS.md, Sec. 1).
+"""Robot constants mirrored from the public AV-ALOHA / ALOHA 2 numbers (their MJCF models and docs).
 
 Only numbers carry over; the model itself is built by our own MjSpec code in `robot.py` and
 `scene.py`. Units: metres, radians, kilograms, seconds. Frames: the base frame B is the world

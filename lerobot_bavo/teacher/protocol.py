@@ -1,6 +1,6 @@
 """The 4D-teacher protocol: point-aligned queries q = (u, v, t_src, t_tgt, t_cam) on an episode clip.
 
-D4RT (FACTS.md, Sec. 3) maps a video clip to a scene representation and answers independent
+D4RT (arXiv 2512.08924) maps a video clip to a scene representation and answers independent
 queries q = (u, v, t_src, t_tgt, t_cam): "where is the surface point seen at pixel (u, v) of
 frame t_src at time t_tgt, expressed in the camera frame of frame t_cam". A-FAR (paper Sec. 4.2,
 Appendix B) asks it, for every point of the current cloud, at

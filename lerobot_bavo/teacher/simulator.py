@@ -2,7 +2,7 @@
 
 D4RT is trained to predict, for a query q = (u, v, t_src, t_tgt, t_cam), the 3D position at time
 t_tgt of the surface point seen at pixel (u, v) of frame t_src, in the camera frame of t_cam.
-In simulation that target is known exactly (FACTS.md, Sec. 3, "Recommended stand-in teacher"):
+In simulation that target is known exactly, so the stand-in teacher computes it:
 
 1. P = T_B<-C(t_src) K^-1 [u, v, 1]^T depth_src(v, u): the seen point in the base frame B.
 2. b = the body seen at (v, u) at t_src (segmentation of the same render pass); its pose
