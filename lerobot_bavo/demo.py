@@ -43,7 +43,7 @@ def run_demo(task: str, condition: str, seeds: list[int], output_dir: Path, agen
     from tqdm import tqdm
 
     from lerobot_bavo.envs.bavo_env import BavoEnv
-    from lerobot_bavo.eval.metrics import success_rate, task_progress_score
+    from lerobot_bavo.metrics import success_rate, task_progress_score
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
 
     unknown = [a for a in agents if a not in AGENTS]

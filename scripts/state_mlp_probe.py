@@ -124,7 +124,7 @@ def evaluate(args) -> None:
     import torch
 
     from lerobot_bavo.envs.bavo_env import BavoEnv
-    from lerobot_bavo.eval.metrics import NUM_MILESTONES
+    from lerobot_bavo.metrics import NUM_MILESTONES
 
     ck = torch.load(args.model, weights_only=False)
     net = make_net(ck["n_in"], HORIZON * len(ck["am"]))

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_bavo.eval import cli
+from lerobot_bavo.eval import cli, run
 from lerobot_bavo.eval.grid import GridError, aggregate_seeds, load_grid, mean_std, parse_grid, run_grid
 
 TINY = {"tasks": ["cube_handoff"], "conditions": ["random"], "episodes": 1, "seed": 1000,
@@ -61,7 +61,7 @@ def test_tiny_grid_resumes_and_reports_mean_std(tmp_path, monkeypatch, capsys):
     def no_work(job):
         raise AssertionError(f"episode {job['seed']} of {job['policy']} ran again")
 
-    monkeypatch.setattr(cli, "_run_job", no_work)
+    monkeypatch.setattr(run, "run_job", no_work)
     second = run_grid(grid, out)  # the same command again: every cell is finished
     assert "3 finished, 0 to run" in capsys.readouterr().out
     assert second == first

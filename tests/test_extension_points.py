@@ -2,7 +2,7 @@
 
 A toy sixth task (`register_task`), its expert (`register_expert`) and a toy condition
 (`register_condition`) are defined in this file and run through `BavoEnv`, the Stage and Random-time
-schedules, `BavoEnvConfig` and `bavo-eval`'s rollout (`run_episode` and the worker's `_run_job`).
+schedules, `BavoEnvConfig` and `bavo-eval`'s rollout (`run_episode` and the worker's `run_job`).
 A task whose Stage targets name a geom its build does not add fails when the env is built, with a
 message that names the geom.
 """
@@ -17,7 +17,7 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.conditions import CONDITIONS, Condition, register_condition
 from lerobot_bavo.envs.configs import BavoEnvConfig
 from lerobot_bavo.envs.tasks import TASKS, Task, register_task
-from lerobot_bavo.eval.cli import _run_job
+from lerobot_bavo.eval.run import run_job
 from lerobot_bavo.eval.rollout import make_agent, run_episode
 from lerobot_bavo.experts import EXPERTS, ScriptedExpert, register_expert
 from lerobot_bavo.sim import constants as C
@@ -147,7 +147,7 @@ def test_toy_condition_runs_through_env_and_bavo_eval(registered):
     finally:
         env.close()
 
-    record = _run_job({"policy": "expert", "task": "toy_puck", "condition": "toy_every12", "seed": 1,
+    record = run_job({"policy": "expert", "task": "toy_puck", "condition": "toy_every12", "seed": 1,
                        "env_kwargs": dict(SMALL)})
     assert record["task"] == "toy_puck" and record["condition"] == "toy_every12"
     assert record["success"] and [p["step"] for p in record["placements"]] == [0, 12, 24]

@@ -329,12 +329,12 @@ def test_a_torn_last_log_line_is_dropped_and_a_corrupt_middle_line_is_named(tmp_
 # `python -c FAKE_EVAL <seconds per episode> <bavo-eval arguments>`.
 FAKE_EVAL = """
 import resource, signal, sys, time
-from lerobot_bavo.eval import cli
+from lerobot_bavo.eval import cli, run
 def fake_run_job(job):
     time.sleep(float(sys.argv[1]))
     return {"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True,
             "progress": 5, "steps": 300, "padding": "x" * 200}
-cli._run_job = fake_run_job
+run.run_job = fake_run_job
 limit = int(sys.argv[2])
 if limit:  # the disk fills after `limit` bytes: writes past it fail with EFBIG, as with ENOSPC
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)

@@ -304,10 +304,10 @@ def test_a_full_disk_while_writing_results_leaves_the_previous_results_whole(tmp
     """Before: results.json was written in place, so a full disk left invalid JSON beside the previous results.md.
     Now results.json and results.md are written through temporaries and renamed together: a failed write ends
     the run with a message, leaves both previous files as they were (valid), and the re-run finishes them."""
-    from lerobot_bavo.eval import cli
+    from lerobot_bavo.eval import cli, run
     from test_faults import _fake_eval
 
-    monkeypatch.setattr(cli, "_run_job", _fake_run_job)
+    monkeypatch.setattr(run, "run_job", _fake_run_job)
     out = tmp_path / "eval"
     base = ["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean", "--videos", "0",
             "--output-dir", str(out)]

@@ -126,10 +126,10 @@ def test_ray_gives_the_same_results_as_local(local_ray, tmp_path):
 @needs_ray
 def test_ray_resumes_like_local(local_ray, tmp_path, monkeypatch, capsys):
     """Three episodes run locally, then the same command for six on Ray runs only the three missing ones."""
-    from lerobot_bavo.eval import cli
+    from lerobot_bavo.eval import cli, run
 
     _, marks = local_ray
-    monkeypatch.setattr(cli, "_run_job", fake_job)
+    monkeypatch.setattr(run, "run_job", fake_job)
     monkeypatch.setenv(MARKS_ENV, str(marks))  # for the in-process local run
     clear_marks(marks)
     out = tmp_path / "eval"
@@ -147,10 +147,10 @@ def test_ray_resumes_like_local(local_ray, tmp_path, monkeypatch, capsys):
 def test_a_killed_ray_worker_is_retried_and_nothing_is_lost_or_duplicated(local_ray, tmp_path, monkeypatch):
     """SIGKILL the Ray worker running seed 1003 mid-episode: Ray re-runs that episode in another worker; every
     seed is logged exactly once and results.json counts each once."""
-    from lerobot_bavo.eval import cli
+    from lerobot_bavo.eval import cli, run
 
     _, marks = local_ray
-    monkeypatch.setattr(cli, "_run_job", fake_job)
+    monkeypatch.setattr(run, "run_job", fake_job)
     clear_marks(marks)
     victim = 1003
     killer, killed = start_killer(marks, victim)
@@ -175,10 +175,10 @@ def test_missing_ray_is_named_and_local_never_imports_ray(tmp_path):
     script = f"""
 import sys
 sys.modules["ray"] = None  # as if Ray were not installed
-from lerobot_bavo.eval import cli
+from lerobot_bavo.eval import cli, run
 def fake(job):
     return {{"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True, "progress": 5}}
-cli._run_job = fake
+run.run_job = fake
 args = ["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean", "--episodes", "2", "--videos", "0"]
 cli.main(args + ["--output-dir", {str(tmp_path / "local")!r}, "--workers", "2"])  # an import of ray would fail
 try:
@@ -199,11 +199,11 @@ except SystemExit as e:
 # A bavo-eval on its own private Ray whose episodes are fake (1 s each; defined in __main__, so Ray ships them).
 FAKE_RAY_EVAL = """
 import sys, time
-from lerobot_bavo.eval import cli
+from lerobot_bavo.eval import cli, run
 def fake(job):
     time.sleep(1.0)
     return {"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True, "progress": 5}
-cli._run_job = fake
+run.run_job = fake
 cli.main(sys.argv[1:])
 """
 

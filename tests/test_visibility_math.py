@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_bavo.eval.metrics import (
+from lerobot_bavo.metrics import (
     CVG_HORIZON,
     CVGAccumulator,
     CVGEventRecord,

@@ -18,7 +18,7 @@ Privileged information (milestone flags, object poses, camera pose) only goes in
 Conditions (`envs/conditions.py`): "clean" has no occluder; "stage" and "random" place the benchmark
 occluder at reset and at the Stage transitions / Random-time triggers (`envs/occlusion.py`); `info["occlusion"]`
 reports the current event and the target's per-step visibility, and under "random"
-`info["cvg"]` at episode end holds the events' CVG (`eval/metrics.py`). The visibility
+`info["cvg"]` at episode end holds the events' CVG (`lerobot_bavo/metrics.py`). The visibility
 renders use their own GL context and never touch observations, actions or dynamics.
 Seeding: every random draw (task layout, then the occlusion schedule) comes from
 `self.np_random`, seeded by `reset(seed=...)`.
@@ -54,7 +54,7 @@ from lerobot_bavo.features import (
     ObservationSettings,
 )
 from lerobot_bavo.envs.visibility import TargetVisibility
-from lerobot_bavo.eval.metrics import NUM_MILESTONES, CVGAccumulator
+from lerobot_bavo.metrics import NUM_MILESTONES, CVGAccumulator
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.kinematics import make_arm_kinematics
 from lerobot_bavo.sim.rendering import SceneRenderer

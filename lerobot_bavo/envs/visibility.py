@@ -2,7 +2,7 @@
 
 `TargetVisibility` renders the occluder-free scene's segmentation and depth from a camera pose and
 counts the target's pixels (N^noOcc) and those the occluder panel leaves visible (N^occ, by
-ray-rectangle intersection, `panel_hides`); `lerobot_bavo.eval.metrics.normalized_visibility` turns
+ray-rectangle intersection, `panel_hides`); `lerobot_bavo.metrics.normalized_visibility` turns
 the counts into V. This is the privileged evaluation path: it never touches observations.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_bavo.eval.metrics import normalized_visibility
+from lerobot_bavo.metrics import normalized_visibility
 
 __all__ = ["TargetVisibility", "panel_hides", "pixel_rays"]
 

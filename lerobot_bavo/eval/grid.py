@@ -37,9 +37,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from lerobot_bavo.limits import short_repr
+from lerobot_bavo.metrics import CELL_METRICS
 
 GRID_VERSION = 1
-METRICS = ("sr", "tps", "cvg", "joint")
+METRICS = tuple(CELL_METRICS)
+# The table and the plot leave Joint out: it is SR x CVG / 100, a product of two columns they show.
+SHOWN = tuple(k for k in CELL_METRICS if k != "joint")
 DEFAULT_CONDITIONS = ("clean", "stage", "random")
 TOP_KEYS = ("tasks", "conditions", "episodes", "seed", "methods")
 METHOD_KEYS = ("checkpoints", "tasks", "conditions")
@@ -275,18 +278,19 @@ def fmt_mean_std(mean: float | None, std: float | None) -> str:
 
 
 def _columns(results: dict) -> list[tuple[str, str]]:
-    """(condition, metric) columns of the table: SR and TPS per condition, CVG where any cell has one."""
+    """(condition, metric) columns of the table: each `SHOWN` metric per condition where any cell has a value
+    (SR and TPS always, CVG for Random-time)."""
     cols = []
     for cond in results["conditions"]:
-        cols += [(cond, "sr"), (cond, "tps")]
-        if any(cell["mean"]["cvg"] is not None for m in results["methods"].values()
-               for key, cell in m["cells"].items() if key.endswith(f"/{cond}")):
-            cols.append((cond, "cvg"))
+        for metric in SHOWN:
+            if any(cell["mean"][metric] is not None for m in results["methods"].values()
+                   for key, cell in m["cells"].items() if key.endswith(f"/{cond}")):
+                cols.append((cond, metric))
     return cols
 
 
 def grid_markdown(results: dict) -> str:
-    names = {"sr": "SR", "tps": "TPS", "cvg": "CVG"}
+    names = {k: label.split(" (")[0] for k, label in CELL_METRICS.items()}  # "SR (%)" -> "SR"
     cols = _columns(results)
     last_seed = results["seed"] + results["episodes"] - 1
     lines = [(f"{results['episodes']} episodes per cell (seeds {results['seed']}-{last_seed}); values are mean ± std "
@@ -318,11 +322,11 @@ def grid_plot(results: dict) -> bytes:
     panels = tasks + (["mean over tasks"] if len(tasks) > 1 else [])
     methods = list(results["methods"])
     conds = list(results["conditions"])
-    fig, axes = plt.subplots(3, len(panels), figsize=(max(6.0, 2.6 * len(panels) + 1), 7.5), squeeze=False,
+    fig, axes = plt.subplots(len(SHOWN), len(panels), figsize=(max(6.0, 2.6 * len(panels) + 1), 7.5), squeeze=False,
                              sharey="row")
     width = 0.8 / max(1, len(methods))
     for col, panel in enumerate(panels):
-        for row, (metric, label) in enumerate((("sr", "SR (%)"), ("tps", "TPS (%)"), ("cvg", "CVG (pp)"))):
+        for row, (metric, label) in enumerate((k, CELL_METRICS[k]) for k in SHOWN):
             ax = axes[row][col]
             for i, name in enumerate(methods):
                 m = results["methods"][name]
@@ -361,7 +365,7 @@ def run_dir(output_dir: Path, method: str, label: str) -> Path:
 
 def pending_episodes(grid: Grid, output_dir: Path) -> int:
     """Episodes of the grid not yet in any run's episodes.jsonl (what a run now would do)."""
-    from lerobot_bavo.eval.cli import read_episode_log
+    from lerobot_bavo.eval.run import read_episode_log
 
     missing = 0
     for m in grid.methods:
@@ -377,7 +381,7 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
     """Run (or resume) every (method, training seed) of the grid, then write results.json / .md / .png."""
     import contextlib
 
-    from lerobot_bavo.eval.cli import claim_output_dir, evaluate, write_results
+    from lerobot_bavo.eval.run import claim_output_dir, evaluate, write_results
 
     output_dir = Path(output_dir)
     lock = claim_output_dir(output_dir, "bavo-eval --grid")

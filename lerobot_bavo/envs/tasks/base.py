@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from lerobot_bavo.eval.metrics import NUM_MILESTONES
+from lerobot_bavo.metrics import NUM_MILESTONES
 from lerobot_bavo.sim.transforms import yaw_quat
 
 

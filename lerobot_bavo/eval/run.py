@@ -1,0 +1,329 @@
+"""The evaluation library behind `bavo-eval` and `bavo-eval --grid`: the episode job, the episode log
+(`episodes.jsonl`, resumable), the claim on an output folder, `evaluate` and the result files.
+
+`eval/cli.py` (the command) and `eval/grid.py` (the grid runner) both import it; it imports neither, so
+editing the command line never touches the run it starts. The command's help text (`eval/cli.py`) says what
+the files hold and how resume, locking and the executors behave.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from lerobot_bavo.metrics import CELL_METRICS, cell_metrics
+from lerobot_bavo.runtime.pool import ProcessCache, WorkerPool, executor_problem
+
+RESULTS_VERSION = 1
+
+
+def _close_env_agent(env_agent) -> None:
+    env_agent[0].close()
+
+
+_ENV_AGENT = ProcessCache(close=_close_env_agent)
+
+
+def run_job(job: dict) -> dict:
+    """One episode (a job of `evaluate`) in a worker process; envs and agents are cached per (policy, task, condition)."""
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
+
+    env_kwargs = job["env_kwargs"] if "env_kwargs" in job else env_kwargs_for_policy(job["policy"])
+    key = (job["policy"], job["task"], job["condition"], tuple(sorted(env_kwargs.items())))
+
+    def build():
+        env = BavoEnv(task=job["task"], condition=job["condition"], **env_kwargs)
+        return env, make_agent(job["policy"], env, trust_remote_code=job.get("trust_remote_code", False))
+
+    env, agent = _ENV_AGENT.get(key, build)
+    video = Path(job["video"]) if job.get("video") else None
+    rerun = Path(job["rerun"]) if job.get("rerun") else None
+    t0 = time.perf_counter()
+    record = run_episode(env, agent, job["seed"], video_path=video, rerun_path=rerun)
+    record["wall_s"] = round(time.perf_counter() - t0, 2)
+    record["task"], record["condition"] = job["task"], job["condition"]
+    if job.get("checkpoint_sha256"):
+        record["checkpoint_sha256"] = job["checkpoint_sha256"]
+    return record
+
+
+def summarize_cell(records: list[dict]) -> dict:
+    """SR, TPS, CVG (pp) and Joint of one (task, condition) cell (paper Sec. 3.3, App. A)."""
+    from lerobot_bavo.metrics import aggregate_cvg, joint_score, success_rate, task_progress_score
+
+    sr = success_rate([r["success"] for r in records])
+    tps = task_progress_score([r["progress"] for r in records])
+    cvg = aggregate_cvg([r.get("episode_cvg") for r in records])
+    cvg_pp = None if cvg is None else 100.0 * cvg
+    fallbacks = sum(p["fallback"] for r in records for p in r.get("placements", []))
+    return {"sr": sr, "tps": tps, "cvg": cvg_pp, "joint": joint_score(sr, cvg_pp),
+            "n_episodes": len(records), "occluder_fallbacks": fallbacks,
+            "episodes": sorted(records, key=lambda r: r["seed"])}
+
+
+def markdown_table(results: dict) -> str:
+    """results.md: one row per (task, condition) cell, the `CELL_METRICS` as columns, and the mean over tasks
+    per condition where there is more than one task."""
+    def fmt(x):
+        return "-" if x is None else f"{x:.1f}"
+
+    def row(first, cond, values):
+        return "| " + " | ".join([first, cond, *(fmt(values[k]) for k in CELL_METRICS)]) + " |"
+
+    lines = [f"Policy: `{results['policy']}`, {results['episodes']} episodes per cell, seeds from "
+             f"{results['seed']}.", "",
+             "| " + " | ".join(["task", "condition", *CELL_METRICS.values()]) + " |",
+             "|" + "---|" * (2 + len(CELL_METRICS))]
+    cells = results["cells"]
+    for task in results["tasks"]:
+        for cond in results["conditions"]:
+            c = cells.get(f"{task}/{cond}")
+            if c:
+                lines.append(row(task, cond, c))
+    for cond in results["conditions"]:
+        cs = [cells[f"{t}/{cond}"] for t in results["tasks"] if f"{t}/{cond}" in cells]
+        if len(cs) > 1:
+            means = {k: None if any(c[k] is None for c in cs) else sum(c[k] for c in cs) / len(cs)
+                     for k in CELL_METRICS}
+            lines.append(row("**mean**", cond, means))
+    return "\n".join(lines) + "\n"
+
+
+def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
+    """Finished episodes of `episodes.jsonl`, keyed (task, condition, seed).
+
+    Every record is written as one line ending in a newline, so a last line without one is a torn write
+    (a full disk, a kill mid-write): it is dropped (the file is truncated to the last complete line) with
+    a warning, and its episode runs again. A line that does not parse anywhere else is corruption: an
+    error naming the file and the line."""
+    import sys
+
+    done: dict[tuple[str, str, int], dict] = {}
+    if not log_path.exists():
+        return done
+    data = log_path.read_bytes()
+    complete = data[: data.rfind(b"\n") + 1]
+    if len(complete) < len(data):
+        print(f"bavo-eval: warning: dropping an incomplete last line of {log_path} ({len(data) - len(complete)} "
+              "bytes, a torn write); its episode runs again", file=sys.stderr)
+        with open(log_path, "r+b") as fh:
+            fh.truncate(len(complete))
+    for number, line in enumerate(complete.decode("utf-8", errors="replace").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            r = json.loads(line)
+            done[(r["task"], r["condition"], r["seed"])] = r
+        except (json.JSONDecodeError, KeyError, TypeError) as e:
+            raise SystemExit(f"bavo-eval: {log_path} line {number} is corrupt ({e}); remove that line (its "
+                             "episode then runs again) or use another --output-dir") from None
+    return done
+
+
+def env_kwargs_for_run(policy: str, point_frame: str | None = None) -> dict:
+    """The `BavoEnv` settings of a run: what the checkpoint records (`lerobot_bavo.checkpoints.env_settings`), with
+    `point_frame` from the command line where nothing records it. A --point-frame that contradicts the
+    checkpoint's training data is refused, listing both."""
+    import sys
+
+    from lerobot_bavo.checkpoints import CheckpointMismatchError
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy
+
+    try:
+        kwargs = dict(env_kwargs_for_policy(policy))
+    except CheckpointMismatchError as e:
+        raise SystemExit(f"bavo-eval: {e}") from None
+    recorded = kwargs.get("point_frame")
+    if point_frame is not None and recorded is not None and point_frame != recorded:
+        raise SystemExit(f"bavo-eval: --point-frame {point_frame} conflicts with the checkpoint: point_frame: "
+                         f"checkpoint {recorded!r} (its training dataset's bavo_collection.json), asked {point_frame!r}")
+    if point_frame is not None:
+        kwargs["point_frame"] = point_frame
+    elif "n_points" in kwargs and recorded is None:
+        kwargs["point_frame"] = "base"
+        print(f"bavo-eval: warning: nothing on this machine records the point-cloud frame the checkpoint at {policy} "
+              "was trained on (its train_config.json names no bavo-collect dataset found here); evaluating on "
+              "base-frame clouds, pass --point-frame camera for a camera-frame model", file=sys.stderr)
+    return kwargs
+
+
+def _identity(settings: dict) -> tuple:
+    """What must match to resume a run: seed, the checkpoint's digest (the expert's name), the point frame.
+    The path is informational (run.json files written before the digest existed still resume)."""
+    return (settings.get("seed"), settings.get("checkpoint_sha256") or settings.get("policy"),
+            settings.get("point_frame", "base"))
+
+
+def append_record(log, record: dict) -> None:
+    """Append one record to the open (unbuffered, binary) `episodes.jsonl` as one newline-terminated line.
+
+    The newline comes last, so a write cut short (a full disk, a kill) leaves a last line without one, which
+    `read_episode_log` recognises and drops. Unbuffered, so nothing is left to flush (and to fail again) when
+    the file is closed after a failed write; a failed write ends the run with a message, not a traceback."""
+    data = memoryview((json.dumps(record) + "\n").encode())
+    try:
+        while data:
+            data = data[log.write(data):]
+    except OSError as e:
+        raise SystemExit(f"bavo-eval: writing {log.name} failed ({e.strerror}); free some space and re-run the same "
+                         "command: finished episodes are kept and the cut-off last line is dropped") from None
+
+
+
+
+def _make_pool(executor: str, workers: int, jobs: list, ray_address: str | None):
+    """The pool episodes run in: local processes (in-process for one worker), or Ray tasks (`RayPool`; Ray is
+    imported only here). Both give `imap(fn, jobs)`; Ray's results come in completion order."""
+    if executor == "ray" and jobs:
+        from lerobot_bavo.runtime.ray_pool import RayPool
+
+        return RayPool(workers, address=ray_address)
+    return WorkerPool(workers if workers > 1 and jobs else 0, start_method=None)
+
+
+def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
+             output_dir: Path, workers: int = 1, videos: int = 1, trust_remote_code: bool = False,
+             point_frame: str | None = None, rerun_dir: Path | None = None, executor: str = "local",
+             ray_address: str | None = None) -> dict:
+    """Run (or resume) the evaluation and write results.json / results.md; returns the results.
+    `rerun_dir`: also write a rerun recording of every episode run there (`lerobot_bavo.viz`).
+    `executor`: "local" (a `WorkerPool` of `workers` processes) or "ray" (a `RayPool`: Ray tasks on the cluster
+    at `ray_address`, or on a private local Ray with `workers` CPUs)."""
+    from tqdm import tqdm
+
+    from lerobot_bavo.checkpoints import (
+        CheckpointMismatchError,
+        check_processor_steps,
+        check_tensor_files,
+        checkpoint_digest,
+        load_policy_config,
+    )
+    from lerobot_bavo.envs.conditions import CONDITIONS
+    from lerobot_bavo.envs.tasks import TASKS
+    from lerobot_bavo.eval.rollout import EXPERT_POLICIES
+    from lerobot_bavo.features import POINT_FRAMES
+
+    for t in tasks:
+        if t not in TASKS:
+            raise SystemExit(f"bavo-eval: unknown task {t!r}; choose from {', '.join(TASKS)}")
+    for c in conditions:
+        if c not in CONDITIONS:
+            raise SystemExit(f"bavo-eval: unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
+    if policy not in EXPERT_POLICIES and not (Path(policy) / "config.json").is_file():
+        raise SystemExit(f"bavo-eval: --policy {policy!r} is neither {' / '.join(EXPERT_POLICIES)} "
+                         "nor a LeRobot checkpoint directory containing config.json")
+    if (problem := executor_problem(executor, ray_address, workers)) is not None:
+        raise SystemExit(f"bavo-eval: {problem}")
+    if point_frame is not None and point_frame not in POINT_FRAMES:
+        raise SystemExit(f"bavo-eval: --point-frame must be base or camera, got {point_frame!r}")
+    if output_dir.exists() and not output_dir.is_dir():
+        raise SystemExit(f"bavo-eval: --output-dir {output_dir} exists and is not a folder")
+    settings: dict = {"seed": seed}
+    if policy in EXPERT_POLICIES:
+        policy_id = settings["policy"] = policy
+    else:
+        policy_id = settings["policy"] = str(Path(policy).resolve())
+        try:  # refuse untrusted processor steps and policy types here, before any worker imports them; then
+            # configs out of bounds (`lerobot_bavo.limits`) and cut-off weights, before any env or model is built
+            check_processor_steps(policy, trust_remote_code=trust_remote_code)
+            load_policy_config(policy)
+            check_tensor_files(policy)
+        except (ValueError, CheckpointMismatchError) as e:
+            raise SystemExit(f"bavo-eval: {e}") from None
+        settings["checkpoint_sha256"] = checkpoint_digest(policy)
+    env_kwargs = env_kwargs_for_run(policy, point_frame)
+    settings["point_frame"] = env_kwargs.get("point_frame", "base")
+
+    lock = claim_output_dir(output_dir, "bavo-eval")
+    try:
+        return _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed,
+                                output_dir, workers, videos, trust_remote_code, tqdm, rerun_dir, executor, ray_address)
+    finally:
+        lock.close()
+
+
+def claim_output_dir(output_dir: Path, holder: str):
+    """Create `output_dir` and take its exclusive lock (one bavo-eval run or grid per folder); returns the lock
+    to close when done. Errors name the folder and say what to do."""
+    from lerobot_bavo.runtime.process import LockedError, exclusive_lock
+
+    try:
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # e.g. a parent that is a file
+        raise SystemExit(f"bavo-eval: cannot create --output-dir {output_dir}: {e.strerror}") from None
+    try:
+        return exclusive_lock(output_dir, holder)
+    except LockedError as e:
+        raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
+
+
+def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed, output_dir, workers,
+                     videos, trust_remote_code, tqdm, rerun_dir=None, executor="local", ray_address=None) -> dict:
+    log_path = output_dir / "episodes.jsonl"
+    settings_path = output_dir / "run.json"
+    if settings_path.exists():
+        try:
+            previous = json.loads(settings_path.read_text())
+        except json.JSONDecodeError as e:
+            raise SystemExit(f"bavo-eval: {settings_path} is not valid JSON ({e}); use another --output-dir") from None
+        if not isinstance(previous, dict) or _identity(previous) != _identity(settings):
+            raise SystemExit(f"bavo-eval: {output_dir} holds a run with different settings {previous} (now "
+                             f"{settings}: another checkpoint, or the same path with other weights); use another "
+                             "--output-dir")
+    write_results({settings_path: json.dumps(settings)})
+
+    done = read_episode_log(log_path)
+    digest = settings.get("checkpoint_sha256")
+    foreign = sorted({r["checkpoint_sha256"] for r in done.values() if r.get("checkpoint_sha256", digest) != digest})
+    if foreign:
+        raise SystemExit(f"bavo-eval: {log_path} holds episodes of other checkpoints (sha256 {', '.join(foreign)}; "
+                         f"this one is {digest}); use another --output-dir")
+    jobs = []
+    for task in tasks:
+        for cond in conditions:
+            for i in range(episodes):
+                s = seed + i
+                if (task, cond, s) in done:
+                    continue
+                video = str(output_dir / "videos" / f"{task}_{cond}_seed{s}.mp4") if i < videos else None
+                rerun = str(Path(rerun_dir) / f"{task}_{cond}_seed{s}.rrd") if rerun_dir is not None else None
+                jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video, "rerun": rerun,
+                             "trust_remote_code": trust_remote_code, "env_kwargs": env_kwargs,
+                             "checkpoint_sha256": digest})
+    if done:
+        print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
+
+    with open(log_path, "ab", buffering=0) as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
+        with _make_pool(executor, workers, jobs, ray_address) as pool:
+            for record in pool.imap(run_job, jobs):
+                done[(record["task"], record["condition"], record["seed"])] = record
+                append_record(log, record)
+                bar.update(1)
+
+    cells = {}
+    for task in tasks:
+        for cond in conditions:
+            records = [done[(task, cond, seed + i)] for i in range(episodes)]
+            cells[f"{task}/{cond}"] = summarize_cell(records)
+    results = {"version": RESULTS_VERSION, "policy": policy_id, "tasks": tasks, "conditions": conditions,
+               "episodes": episodes, "seed": seed, "cells": cells}
+    table = markdown_table(results)
+    write_results({output_dir / "results.json": json.dumps(results, indent=1), output_dir / "results.md": table})
+    print(table)
+    return results
+
+
+def write_results(files: dict) -> None:
+    """Write result files (path -> text or bytes) all or none (`runtime.files.write_files_atomic`); a failed
+    write (a full disk) ends the run with a message and leaves the previous files as they were."""
+    from lerobot_bavo.runtime.files import write_files_atomic
+
+    try:
+        write_files_atomic(files)
+    except OSError as e:
+        names = ", ".join(sorted({str(Path(p).name) for p in files}))
+        raise SystemExit(f"bavo-eval: writing {names} in {Path(next(iter(files))).parent} failed ({e.strerror}); "
+                         "the previous files are unchanged; free some space and re-run the same command: finished "
+                         "episodes are kept") from None
