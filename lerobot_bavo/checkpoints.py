@@ -334,7 +334,7 @@ def recorded_point_frame(path: str | Path) -> str | None:
         from lerobot.utils.constants import HF_LEROBOT_HOME
 
         roots.append(Path(HF_LEROBOT_HOME) / dataset["repo_id"])
-    from lerobot_bavo.datasets.hub import SIDECAR
+    from lerobot_bavo.datasets.metadata import SIDECAR
     from lerobot_bavo.datasets.views import view_source
 
     roots += [view_source(root) for root in roots if view_source(root) != root]

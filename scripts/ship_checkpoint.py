@@ -45,7 +45,7 @@ def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
 def collection_summary(train: dict) -> dict | None:
     """What the training dataset's `bavo-collect` record says (condition, execution noise, seeds, discarded
     attempts) and its frame count, or None when that dataset is not on this machine."""
-    from lerobot_bavo.datasets.hub import SIDECAR
+    from lerobot_bavo.datasets.metadata import SIDECAR
     from lerobot_bavo.datasets.views import view_source
 
     root = train["dataset"].get("root")

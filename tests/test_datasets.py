@@ -229,7 +229,7 @@ def test_corrupted_or_mismatched_datasets_give_clear_errors(dataset_root, tmp_pa
 
     # Two collections never write one dataset at the same time.
     busy = _copy(dataset_root, tmp_path, "busy")
-    lock = Collector(_config(busy, episodes=3))._lock()
+    lock = Collector(_config(busy, episodes=3)).lock()
     try:
         with pytest.raises(CollectionError, match="another bavo-collect is writing"):
             collect(_config(busy, episodes=3))
@@ -305,7 +305,7 @@ def test_resume_after_a_kill_inside_a_commit(tmp_path, monkeypatch):
 
     with monkeypatch.context() as m:
         m.setattr(LeRobotDataset, "save_episode", dying_save)
-        m.setattr(Collector, "_rollback", lambda self: None)
+        m.setattr(Collector, "rollback", lambda self: None)
         with pytest.raises(_Killed):
             collect(cfg)
     rec = read_sidecar(root)
@@ -355,7 +355,7 @@ class _PixelTeacher:
 
 def test_a_learned_teacher_recomputes_the_cache_of_a_stored_dataset(dataset_root, tmp_path):
     from lerobot_bavo.teacher import Teacher, make_clip
-    from lerobot_bavo.teacher.cache import dataset_episode, recompute_teacher_cache
+    from lerobot_bavo.datasets.teacher_cache import dataset_episode, recompute_teacher_cache
 
     assert isinstance(_PixelTeacher(), Teacher)
     ds = load_bavo_dataset(REPO, root=dataset_root)
@@ -404,9 +404,9 @@ def test_recorder_annotations_under_other_conditions(condition):
 def test_video_coverage_check_catches_dropped_frames(dataset_root):
     """The post-commit check compares each episode's video span with its frame count (STEPS at 25 fps)."""
     collector = Collector(_config(dataset_root, episodes=2))
-    collector._verify_videos(0, [{"seed": 0, "length": STEPS}, {"seed": 1, "length": STEPS}])
+    collector.verify_videos(0, [{"seed": 0, "length": STEPS}, {"seed": 1, "length": STEPS}])
     with pytest.raises(CollectionError, match=r"episode 1 \(seed 1\): video covers 1\.200 s for 31 frames"):
-        collector._verify_videos(1, [{"seed": 1, "length": STEPS + 1}])
+        collector.verify_videos(1, [{"seed": 1, "length": STEPS + 1}])
 
 
 def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root, tmp_path):

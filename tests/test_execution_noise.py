@@ -78,9 +78,10 @@ def test_noise_is_part_of_what_a_resumed_collection_must_match():
 
 
 def test_cli_refuses_negative_noise(tmp_path, capsys):
-    code = main(["--task", "cube_handoff", "--episodes", "1", "--repo-id", "a/b", "--root", str(tmp_path / "d"),
-                 "--execution-noise", "-0.1", "--workers", "0", "--no-progress"])
-    assert code == 2
+    with pytest.raises(SystemExit) as exit_:  # a usage error, like every flag CollectConfig refuses
+        main(["--task", "cube_handoff", "--episodes", "1", "--repo-id", "a/b", "--root", str(tmp_path / "d"),
+              "--execution-noise", "-0.1", "--workers", "0", "--no-progress"])
+    assert exit_.value.code == 2
     assert "execution noise std" in capsys.readouterr().err
 
 

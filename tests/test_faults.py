@@ -411,13 +411,13 @@ def test_locks_hold_across_symlinked_spellings_and_for_bavo_eval(tmp_path):
     link.symlink_to(real)
     cfg = dict(task="cube_handoff", condition="stage", episodes=1, repo_id="t/x", workers=0,
                settings=S.ObservationSettings(32, 32, n_points=8), progress=False)
-    held = Collector(CollectConfig(root=real, **cfg))._lock()
+    held = Collector(CollectConfig(root=real, **cfg)).lock()
     try:
         with pytest.raises(CollectionError, match="another bavo-collect is writing"):
-            Collector(CollectConfig(root=link, **cfg))._lock()
+            Collector(CollectConfig(root=link, **cfg)).lock()
     finally:
         held.close()
-    Collector(CollectConfig(root=link, **cfg))._lock().close()  # free again once released
+    Collector(CollectConfig(root=link, **cfg)).lock().close()  # free again once released
 
     out = tmp_path / "eval"
     held = exclusive_lock(out, "bavo-eval")
@@ -515,7 +515,7 @@ def test_bavo_collect_names_the_broken_metadata_file_of_the_dataset_it_continues
     args = ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "t/x", "--root", str(root), "--workers", "0",
             "--image-height", "32", "--image-width", "32", "--n-points", "8", "--no-progress"]
     Collector(CollectConfig(task="cube_handoff", condition="stage", episodes=1, repo_id="t/x", root=root, workers=0,
-                            settings=S.ObservationSettings(32, 32, n_points=8), progress=False))._open()  # empty dataset
+                            settings=S.ObservationSettings(32, 32, n_points=8), progress=False)).open()  # empty dataset
     good = {name: (root / name).read_text() for name in ("meta/info.json", str(SIDECAR))}
     for name, text, message in (
             ("meta/stats.json", "{not json", "stats.json: not valid JSON"),

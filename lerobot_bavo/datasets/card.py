@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.datasets.metadata import read_info, read_sidecar
 from lerobot_bavo.datasets.video_codec import recorded_video_codec
 from lerobot_bavo.envs.conditions import CONDITIONS
 
@@ -142,8 +143,6 @@ def card_description(sidecar: dict, repo_id: str) -> str:
 
 def card_kwargs_for(root: str | Path, repo_id: str) -> dict:
     """Keyword arguments for LeRobot's `push_to_hub` / `create_lerobot_dataset_card`."""
-    from lerobot_bavo.datasets.hub import read_sidecar
-
     sidecar = read_sidecar(root)
     if sidecar is None:
         raise ValueError(f"{root} has no collection record (meta/bavo_collection.json): not made by bavo-collect")
@@ -159,8 +158,6 @@ def card_kwargs_for(root: str | Path, repo_id: str) -> dict:
 def write_card(root: str | Path, repo_id: str) -> Path:
     """Render the card with LeRobot's template and save it as `<root>/README.md`."""
     from lerobot.datasets.utils import DatasetInfo, create_lerobot_dataset_card
-
-    from lerobot_bavo.datasets.hub import read_info
 
     root = Path(root)
     kwargs = card_kwargs_for(root, repo_id)

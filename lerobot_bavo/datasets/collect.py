@@ -36,7 +36,9 @@ How it works:
 - At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`), the
   dataset card (README.md), and optionally `push_to_hub` (needs `huggingface-cli login`).
 
-Where each job lives: this module has the CLI, its config and the run (`Collector`, `SeedScheduler`);
+Where each job lives: this module has the CLI and the run (`Collector`, `SeedScheduler`);
+`collect_config.py` the run's settings (`CollectConfig`); `session.py` the dataset-session API every writer
+of a dataset uses (`DatasetSession`: lock, open, stage, commit, finish; `bavo-teleop` too);
 `staging.py` records and stages one episode (the worker side); `writer.py` is the writer side (a commit's
 writer session, fed episode by episode); `collection_record.py` is the record; `transaction.py`
 snapshots and rolls back a writer session; `lerobot_private.py` holds every use of LeRobot's private
@@ -51,155 +53,26 @@ import json
 import logging
 import os
 import shlex
-import shutil
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from lerobot_bavo.datasets import schema as S
-from lerobot_bavo.datasets.collection_record import CollectionRecord
-from lerobot_bavo.datasets.hub import SIDECAR
-from lerobot_bavo.datasets.staging import (
-    receive_shipped,
-    run_job,
-    seed_of,
-    ship_job,
-    staged_path,
-    warm_job,
+from lerobot_bavo.datasets.collect_config import (  # noqa: F401  (offered here too, where they were first)
+    STAGING,
+    CollectConfig,
+    CollectionError,
 )
-from lerobot_bavo.datasets.transaction import (
-    SnapshotMissing,
-    WriterSessionSnapshot,
-    remove_stray_dirs,
-)
-from lerobot_bavo.datasets.verify import check_committed_files
-from lerobot_bavo.datasets.video_codec import (
-    DEFAULT_VIDEO_CODEC,
-    VIDEO_CODECS,
-    check_video_codec,
-    quiet_libav,
-    recorded_video_codec,
-    rgb_encoder,
-)
-from lerobot_bavo.datasets.video_codec import record_entry as video_codec_record_entry
-from lerobot_bavo.datasets.writer import StreamingWriter, WriterSession
+from lerobot_bavo.datasets.session import DatasetSession
+from lerobot_bavo.datasets.staging import receive_shipped, run_job, ship_job, warm_job
+from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, quiet_libav
+from lerobot_bavo.datasets.writer import StreamingWriter
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
-from lerobot_bavo.runtime.files import restore_default_mode
-from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments, executor_problem
+from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments
 
 logger = logging.getLogger("bavo-collect")
 
-STAGING = ".bavo_staging"
-
-
-@dataclass
-class CollectConfig:
-    """Arguments of a collection (the CLI's flags).
-
-    Args:
-        task, condition: benchmark task and visibility condition.
-        episodes: number of successful episodes wanted in the dataset.
-        repo_id: `<user>/<name>`; also the default local folder `$HF_LEROBOT_HOME/<repo_id>`.
-        root: local dataset folder (default: LeRobot's).
-        workers: worker processes; 0 runs episodes in this process (tests, debugging). With executor "ray" and
-            no ray_address: the CPUs of the private local Ray (>= 1).
-        executor: "local" (`WorkerPool`) or "ray" (`RayPool`: episode rollouts as Ray tasks).
-        ray_address: with executor "ray", the cluster to use (`ray start --head` prints it); None: a private Ray.
-        seed: seed of the first attempt (demonstration seeds should stay clear of eval seeds, 1000+).
-        commit_every: episodes appended per LeRobot writer session (resume granularity).
-        settings: observation settings (image size, points, frame, fovy).
-        episode_length: control-step limit per episode (None: the task's own).
-        keep_failures: keep unsuccessful episodes too (tests / debugging only).
-        execution_noise: DART-style noise on the executed arm joint targets; the dataset records the
-            expert's clean actions (`experts/perturbation.py`). Off by default.
-        use_videos: store the active image as video.
-        video_codec: that video's codec (`datasets/video_codec.py`): "h264" or "libsvtav1" (LeRobot's default AV1).
-            None: "h264" for a new dataset, the dataset's own codec when continuing one.
-        push_to_hub, private: upload when done.
-        max_discard_ratio: abort when more than this many discards per wanted episode (plus 10) occur.
-        progress: show a progress bar.
-        command: the command line, recorded in the collection record and the dataset card.
-    """
-
-    task: str
-    condition: str
-    episodes: int
-    repo_id: str
-    root: Path | None = None
-    workers: int = 2
-    executor: str = "local"
-    ray_address: str | None = None
-    seed: int = 0
-    commit_every: int = 10
-    settings: ObservationSettings = field(default_factory=ObservationSettings)
-    episode_length: int | None = None
-    keep_failures: bool = False
-    execution_noise: ExecutionNoise = field(default_factory=ExecutionNoise)
-    use_videos: bool = True
-    video_codec: str | None = None
-    push_to_hub: bool = False
-    private: bool | None = None
-    max_discard_ratio: float = 2.0
-    progress: bool = True
-    command: str | None = None
-
-    def __post_init__(self):
-        if self.episodes < 1:
-            raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
-        if self.workers < 0:
-            raise ValueError(f"--workers must be >= 0, got {self.workers}")
-        if (problem := executor_problem(self.executor, self.ray_address, self.workers)) is not None:
-            raise ValueError(problem)
-        if self.commit_every < 1:
-            raise ValueError(f"--commit-every must be >= 1, got {self.commit_every}")
-        if self.seed < 0:
-            raise ValueError(f"--seed must be >= 0, got {self.seed}")
-        if self.video_codec is not None:
-            check_video_codec(self.video_codec)
-        if "/" not in self.repo_id:
-            raise ValueError(f"--repo-id must look like '<user>/<name>', got {self.repo_id!r}")
-
-    def resolved_root(self) -> Path:
-        if self.root is not None:
-            return Path(self.root)
-        from lerobot.utils.constants import HF_LEROBOT_HOME
-
-        return Path(HF_LEROBOT_HOME) / self.repo_id
-
-    def record_settings(self, video_codec: str = DEFAULT_VIDEO_CODEC) -> dict:
-        """What must match for a run to continue an existing dataset, recording video with `video_codec`."""
-        from lerobot_bavo.envs.tasks import make_task
-
-        task = make_task(self.task)
-        return {
-            "task": self.task,
-            "task_description": task.description,
-            "stage_targets": list(task.stage_targets),
-            "condition": self.condition,
-            **self.settings.to_dict(),
-            "fps": S.FPS,
-            "episode_length": self.episode_length,
-            "base_seed": self.seed,
-            "keep_failures": self.keep_failures,
-            # Only when on, so that the records of collections made before the option existed still match.
-            **({"execution_noise": self.execution_noise.to_dict()} if self.execution_noise.enabled else {}),
-            "use_videos": self.use_videos,
-            # Only when not the codec of datasets made before the choice existed (their records name none).
-            **video_codec_record_entry(video_codec, self.use_videos),
-            "teacher": {"name": "simulator-exact", "clip_length": S.CLIP_LENGTH, "anchor_index": S.ANCHOR_INDEX,
-                        "n_future": S.N_FUTURE, "visibility_tol_m": 0.01},
-        }
-
-
 # ================================================================== main side
-class CollectionError(RuntimeError):
-    pass
-
-
 class SeedScheduler:
     """Which seeds to attempt next, and the finished attempts in seed order.
 
@@ -254,204 +127,12 @@ class SeedScheduler:
             self.results[seed] = result if self.receive is None else self.receive(result)
 
 
-class Collector:
-    """One `bavo-collect` run on one dataset folder (see the module docstring)."""
-
-    def __init__(self, cfg: CollectConfig):
-        self.cfg = cfg
-        self.root = cfg.resolved_root()
-        self.staging = self.root / STAGING
-        # a dataset being continued keeps its own codec unless one is asked for (then it must match: `_open`)
-        self.settings = cfg.record_settings(cfg.video_codec or DEFAULT_VIDEO_CODEC)
-        self.record: CollectionRecord | None = None
-        self.snapshot = WriterSessionSnapshot(self.root, self.staging / "snapshot")
-
-    @property
-    def video_codec(self) -> str:
-        """The codec this run records video with: the one its settings name (`video_codec.py`)."""
-        return recorded_video_codec(self.settings) or DEFAULT_VIDEO_CODEC
-
-    def _save_record(self) -> None:
-        self.record.save(self.root)
-
-    def _open(self) -> None:
-        """Create the dataset, or reopen it: check settings, roll back a pending commit, check counts."""
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-        from lerobot_bavo.datasets.hub import read_info, read_stats
-
-        info_path = self.root / "meta" / "info.json"
-        if not info_path.exists():
-            if self.root.exists() and any(p.name != STAGING for p in self.root.iterdir()):
-                raise CollectionError(f"{self.root} exists and is not a LeRobot dataset; choose another --root")
-            if self.root.exists():
-                shutil.rmtree(self.root)
-            from lerobot_bavo.envs.tasks import environment_state_dim
-
-            features = S.build_features(self.cfg.settings, use_videos=self.cfg.use_videos,
-                                        env_state_dim=environment_state_dim(self.cfg.task))
-            ds = LeRobotDataset.create(self.cfg.repo_id, S.FPS, features, root=self.root, robot_type="bavo_av_aloha",
-                                       use_videos=self.cfg.use_videos, rgb_encoder=rgb_encoder(self.video_codec))
-            ds.finalize()
-            del ds
-        record = CollectionRecord.load(self.root)
-        info = read_info(self.root)
-        read_stats(self.root, check_nan=False)  # LeRobot.resume would fail on it later with a bare JSONDecodeError
-        if record is None:
-            if info["total_episodes"] != 0:
-                raise CollectionError(
-                    f"{self.root} holds a LeRobot dataset ({info['total_episodes']} episodes) that bavo-collect did not "
-                    f"make (no {SIDECAR}); choose another --root")
-            record = CollectionRecord(repo_id=self.cfg.repo_id, settings=self.settings, next_seed=self.cfg.seed)
-        else:
-            recorded_codec = recorded_video_codec(record.settings)
-            if self.cfg.video_codec is None and recorded_codec is not None and self.cfg.use_videos:
-                self._use_video_codec(recorded_codec)
-            self._check_settings(record.settings)
-        self.record = record
-        S.check_features(info["features"], n_points=self.cfg.settings.n_points)
-        expected_shape = (self.cfg.settings.image_height, self.cfg.settings.image_width, 3)
-        if tuple(info["features"][S.OBS_IMAGE]["shape"]) != expected_shape:
-            raise CollectionError(f"{self.root} stores images of shape {info['features'][S.OBS_IMAGE]['shape']}, "
-                                  f"this run records {expected_shape}")
-        self.staging.mkdir(parents=True, exist_ok=True)
-        for tmp in self.staging.glob("*.tmp"):
-            tmp.unlink()
-        if record.pending_commit is not None:
-            logger.warning("rolling back an interrupted commit of seeds %s", record.pending_commit.seeds)
-            self._rollback()
-        else:
-            self.snapshot.discard()
-        remove_stray_dirs(self.root, keep=(STAGING,))
-        info = read_info(self.root)
-        if info["total_episodes"] != len(self.record.episodes):
-            raise CollectionError(
-                f"{self.root}: meta/info.json has {info['total_episodes']} episodes but {SIDECAR} records "
-                f"{len(self.record.episodes)}; the dataset was modified outside bavo-collect")
-        restore_default_mode(self.root.glob("videos/*/*/*.mp4"))  # the 0600 mp4s of earlier runs
-        try:  # before LeRobot opens it: a missing meta/ file would make LeRobot fetch meta/ from the Hub repo
-            check_committed_files(self.root, info, check_videos=self.cfg.use_videos)
-        except ValueError as e:
-            raise CollectionError(f"{e}. The committed episodes must be whole to continue this dataset (LeRobot would "
-                                  "otherwise fetch missing metadata from the Hub, or keep a damaged file): restore "
-                                  "the file, or collect into another --root") from None
-        self._save_record()
-
-    def _use_video_codec(self, codec: str) -> None:
-        """Record video with `codec` (the settings keep any entry added since construction, e.g. teleop's)."""
-        self.settings.pop("video_codec", None)
-        self.settings.update(video_codec_record_entry(codec, self.cfg.use_videos))
-
-    def _check_settings(self, recorded: dict) -> None:
-        """Refuse to continue a dataset recorded with other settings. Both sides' keys are compared: options that
-        are recorded only when used (execution noise, a codec other than the legacy one, teleop's human source)
-        must be absent on both sides or equal. The codec is compared as `recorded_video_codec` reads it, so a
-        record made before the choice existed reads as 'libsvtav1'."""
-        def view(settings: dict) -> dict:
-            return {**settings, "video_codec": recorded_video_codec(settings)}
-
-        was, now = view(recorded), view(self.settings)
-        keys = [*now, *(k for k in was if k not in now)]
-        diffs = {k: (was.get(k), now.get(k)) for k in keys
-                 if k not in ("task_description", "stage_targets") and was.get(k) != now.get(k)}
-        if diffs:
-            text = ", ".join(f"{k}: dataset {a!r} vs now {b!r}" for k, (a, b) in diffs.items())
-            raise CollectionError(f"{self.root} was collected with other settings ({text}); "
-                                  "use the same arguments to continue it, or another --root")
-
-    def _rollback(self) -> None:
-        try:
-            self.snapshot.restore()
-        except SnapshotMissing as e:
-            raise CollectionError(
-                f"{self.root}: an interrupted commit of seeds {self.record.pending_commit.seeds} cannot be rolled "
-                f"back because {e}; start a new collection in another --root") from None
-        self.record.pending_commit = None
-        self._save_record()
-
-    # -------------------------------------------------------------- staging
-    def _scan_staging(self, first_seed: int) -> dict[int, dict]:
-        """Finished attempts a killed run left staged (seed >= first_seed), to reuse instead of re-running."""
-        found = {}
-        for p in self.staging.glob("seed_*.json"):
-            seed = seed_of(p)
-            if seed < first_seed:
-                self._drop_staged(seed)
-                continue
-            summary = json.loads(p.read_text())
-            if summary.get("kept") and not staged_path(self.staging, seed, ".npz").exists():
-                p.unlink()  # marker without data: redo the episode
-                continue
-            found[seed] = summary
-        for p in self.staging.glob("seed_*.npz"):
-            if seed_of(p) not in found:
-                p.unlink()
-        return found
-
-    def _drop_staged(self, seed: int) -> None:
-        for suffix in (".npz", ".json"):
-            staged_path(self.staging, seed, suffix).unlink(missing_ok=True)
-
-    # -------------------------------------------------------------- commit
-    def _commit(self, batch: list[dict], discards: list[dict], next_seed: int, timings: dict | None = None) -> None:
-        """Append `batch` (summaries of staged kept episodes, seed order) to the dataset in one writer session
-        (`writer.WriterSession`), here and now; an interruption (error, Ctrl+C) before the record is saved
-        rolls the session back. `bavo-teleop` commits each human episode this way; `bavo-collect` writes its
-        episodes into sessions as they are resolved (`writer.StreamingWriter`)."""
-        session = WriterSession(self, max(b["length"] for b in batch), timings)
-        try:
-            for d in discards:
-                session.add_discard(d)
-            for b in batch:
-                session.add(b)
-        except BaseException:
-            logger.warning("interrupted during a commit: rolling it back")
-            session.abort()
-            raise
-        session.close(next_seed)
-
-    def _verify_videos(self, first_index: int, batch: list[dict]) -> None:
-        """Every committed episode's video segment must cover all its frames (no dropped frames), and the data and
-        video files holding the episodes must read whole (`verify.check_committed_files`, as on resume)."""
-        if not self.cfg.use_videos:
-            return
-        import pyarrow.dataset as pads
-
-        # Only the two timestamp columns of the new rows are needed. `io_utils.load_episodes` would
-        # build a `datasets.Dataset` of the whole episode table with its per-feature stats (~3 s for
-        # a few episodes, growing with the dataset); a column-selective pyarrow scan takes ms.
-        key = S.OBS_IMAGE
-        columns = ["episode_index", f"videos/{key}/from_timestamp", f"videos/{key}/to_timestamp"]
-        table = pads.dataset(self.root / "meta" / "episodes", format="parquet").to_table(columns=columns)
-        rows = {int(e): (f, t) for e, f, t in zip(*(table.column(c).to_pylist() for c in columns))}
-        for i, b in enumerate(batch):
-            start, stop = rows[first_index + i]
-            duration = stop - start
-            if abs(duration - b["length"] / S.FPS) > 0.5 / S.FPS:
-                raise CollectionError(
-                    f"episode {first_index + i} (seed {b['seed']}): video covers {duration:.3f} s for {b['length']} "
-                    "frames (dropped frames in the encoder?)")
-        from lerobot_bavo.datasets.hub import read_info
-
-        try:  # and the files holding them: every frame there, the last pictures decodable, the parquet whole
-            check_committed_files(self.root, read_info(self.root),
-                                  episode_indices={first_index + i for i in range(len(batch))})
-        except ValueError as e:
-            raise CollectionError(f"after writing episodes {first_index}..{first_index + len(batch) - 1}: {e}") from None
-
-    # -------------------------------------------------------------- run
-    def _lock(self):
-        """An exclusive lock on the dataset's resolved path, so two runs never write one dataset (not even
-        through a symlinked spelling of --root)."""
-        from lerobot_bavo.runtime.process import LockedError, exclusive_lock
-
-        try:
-            return exclusive_lock(self.root, "bavo-collect")
-        except LockedError as e:
-            raise CollectionError(str(e)) from None
+class Collector(DatasetSession):
+    """One `bavo-collect` run on one dataset folder (see the module docstring): the dataset session plus the
+    worker pool, the seed scheduler and the streaming writer."""
 
     def run(self) -> dict:
-        lock = self._lock()
+        lock = self.lock()
         try:
             return self._run()
         finally:
@@ -474,11 +155,11 @@ class Collector:
 
     def _run_with(self, early_pool, t_start: float) -> dict:
         cfg = self.cfg
-        self._open()
+        self.open()
         requested = cfg.episodes
         committed = len(self.record.episodes)
         on_ray = cfg.executor == "ray"
-        sched = SeedScheduler(self.record.next_seed, self._scan_staging(self.record.next_seed),
+        sched = SeedScheduler(self.record.next_seed, self.scan_staging(self.record.next_seed),
                               receive=(lambda shipped: receive_shipped(shipped, self.staging)) if on_ray else None)
         job_fn = ship_job if on_ray else run_job
         run_stats = {"started": time.strftime("%Y-%m-%d %H:%M:%S"), "requested": requested,
@@ -526,7 +207,7 @@ class Collector:
             if pool is not None:
                 pool.shutdown(cancel=True, wait=False)
         run_stats["timings"] = timings
-        return self._finish(run_stats, time.perf_counter() - t_start)
+        return self.finish(run_stats, time.perf_counter() - t_start)
 
     def _pool(self):
         """Where episodes run: `WorkerPool` (local processes) or `RayPool` (Ray tasks; at most 2 x the cluster's
@@ -550,42 +231,6 @@ class Collector:
             raise CollectionError(
                 f"{total} unsuccessful expert episodes for {kept} kept: the expert for {self.cfg.task!r} under "
                 f"{self.cfg.condition!r} fails too often; aborting")
-
-    def _finish(self, run_stats: dict, wall: float) -> dict:
-        from lerobot_bavo.datasets.card import write_card
-        from lerobot_bavo.datasets.hub import retile_point_cloud_stats
-
-        t0 = time.perf_counter()
-        per_channel = retile_point_cloud_stats(self.root)
-        run_stats.update(finished=time.strftime("%Y-%m-%d %H:%M:%S"), wall_s=round(wall, 1),
-                         committed_after=len(self.record.episodes))
-        self.record.runs.append(run_stats)
-        self.record.complete = len(self.record.episodes) >= self.cfg.episodes
-        self.record.extra["point_cloud_channel_stats"] = {k: np.asarray(v).tolist() for k, v in per_channel.items()
-                                                          if k in ("min", "max", "mean", "std")}
-        if self.cfg.command:
-            self.record.extra["command"] = self.cfg.command
-        self._save_record()
-        shutil.rmtree(self.staging, ignore_errors=True)
-        write_card(self.root, self.cfg.repo_id)
-        summary = {
-            "root": str(self.root), "episodes": len(self.record.episodes), "frames": self.record.frames,
-            "discarded": len(self.record.discarded), "attempts_this_run": run_stats["attempts"],
-            "new_this_run": run_stats["committed_after"] - run_stats["committed_before"], "wall_s": round(wall, 1),
-            "finish_s": round(time.perf_counter() - t0, 1),
-        }
-        if self.cfg.push_to_hub:
-            from lerobot_bavo.datasets.hub import push_dataset
-
-            try:
-                push_dataset(self.root, self.cfg.repo_id, private=self.cfg.private)
-            except Exception as e:
-                raise CollectionError(
-                    f"the dataset is complete at {self.root} but the upload to {self.cfg.repo_id!r} failed "
-                    f"({type(e).__name__}: {e}). Log in with `huggingface-cli login` (or set HF_TOKEN) and re-run the "
-                    "same command: nothing is recollected.") from e
-            summary["pushed"] = self.cfg.repo_id
-        return summary
 
 
 def _progress(total: int, initial: int, enabled: bool):
@@ -616,9 +261,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "staying the only dataset writer")
     p.add_argument("--seed", type=int, default=0, help="seed of the first attempt")
     p.add_argument("--commit-every", type=int, default=10, help="episodes per dataset write session")
-    p.add_argument("--image-height", type=int, default=240)
-    p.add_argument("--image-width", type=int, default=320)
-    p.add_argument("--n-points", type=int, default=256)
+    default = ObservationSettings()  # the observation defaults, in one place
+    p.add_argument("--image-height", type=int, default=default.image_height)
+    p.add_argument("--image-width", type=int, default=default.image_width)
+    p.add_argument("--n-points", type=int, default=default.n_points)
     p.add_argument("--point-frame", default="base", choices=POINT_FRAMES)
     p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")
     p.add_argument("--vcodec", default=None, choices=VIDEO_CODECS,
@@ -644,15 +290,27 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    for name, low in (("episodes", 1), ("workers", 0), ("seed", 0), ("commit_every", 1), ("n_points", 2)):
-        if getattr(args, name) < low:
-            parser.error(f"--{name.replace('_', '-')} must be >= {low}, got {getattr(args, name)}")
     if args.root is not None and args.root.exists() and not args.root.is_dir():
         parser.error(f"--root {args.root} exists and is not a folder")
     if args.root is not None:
         parent = next((p for p in args.root.absolute().parents if p.exists()), None)
         if parent is not None and not parent.is_dir():
             parser.error(f"--root {args.root}: {parent} is not a folder")
+    argv_text = " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
+    try:  # the flags' checks are CollectConfig's (and ObservationSettings'): one place, reported as usage errors
+        cfg = CollectConfig(
+            task=args.task, condition=args.condition, episodes=args.episodes, repo_id=args.repo_id, root=args.root,
+            workers=args.workers, executor=args.executor, ray_address=args.ray_address, seed=args.seed,
+            commit_every=args.commit_every,
+            settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
+            episode_length=args.episode_length, keep_failures=args.keep_failures, video_codec=args.vcodec,
+            execution_noise=ExecutionNoise(std=args.execution_noise,
+                                           clean_contacts=args.execution_noise_clean_contacts),
+            push_to_hub=args.push_to_hub, private=True if args.private else None, progress=not args.no_progress,
+            command=f"bavo-collect {argv_text}",
+        )
+    except ValueError as e:
+        parser.error(str(e))
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (--vcodec libsvtav1): errors only
     quiet_libav()
     from lerobot_bavo.runtime.process import retain_freed_memory
@@ -667,19 +325,7 @@ def main(argv: list[str] | None = None) -> int:
         datasets.disable_progress_bars()
     except Exception:
         pass
-    argv_text = " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
     try:
-        cfg = CollectConfig(
-            task=args.task, condition=args.condition, episodes=args.episodes, repo_id=args.repo_id, root=args.root,
-            workers=args.workers, executor=args.executor, ray_address=args.ray_address, seed=args.seed,
-            commit_every=args.commit_every,
-            settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
-            episode_length=args.episode_length, keep_failures=args.keep_failures, video_codec=args.vcodec,
-            execution_noise=ExecutionNoise(std=args.execution_noise,
-                                           clean_contacts=args.execution_noise_clean_contacts), push_to_hub=args.push_to_hub,
-            private=True if args.private else None, progress=not args.no_progress,
-            command=f"bavo-collect {argv_text}",
-        )
         summary = collect(cfg)
     except (CollectionError, ValueError) as e:
         print(f"bavo-collect: error: {e}", file=sys.stderr)

@@ -16,7 +16,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lerobot_bavo.datasets.hub import SIDECAR
+from lerobot_bavo.datasets.metadata import SIDECAR
 from lerobot_bavo.runtime.files import write_file_atomic
 
 RECORD_FORMAT = 1
@@ -84,7 +84,7 @@ class CollectionRecord:
     @classmethod
     def load(cls, root: Path) -> CollectionRecord | None:
         """The record of the dataset at `root`, None if it has none; a malformed one raises naming the file."""
-        from lerobot_bavo.datasets.hub import read_sidecar
+        from lerobot_bavo.datasets.metadata import read_sidecar
 
         d = read_sidecar(root)
         return None if d is None else cls.from_dict(d)

@@ -133,7 +133,8 @@ def build_features(settings: ObservationSettings, use_videos: bool = True, env_s
 
 def expected_shapes(n_points: int, image_hw: tuple[int, int] | None = None) -> dict[str, tuple[tuple[int, ...], str]]:
     """(shape, dtype) of every BAVO feature for `n_points` (the image entry only if `image_hw`)."""
-    settings = ObservationSettings(*(image_hw or (240, 320)), n_points=n_points)
+    default = ObservationSettings()
+    settings = ObservationSettings(*(image_hw or (default.image_height, default.image_width)), n_points=n_points)
     out = {k: (tuple(ft["shape"]), ft["dtype"]) for k, ft in build_features(settings).items()}
     if image_hw is None:
         out.pop(OBS_IMAGE)

@@ -25,6 +25,7 @@ import logging
 import time
 
 from lerobot_bavo.datasets import schema as S
+from lerobot_bavo.datasets.collect_config import CollectionError
 from lerobot_bavo.datasets.collection_record import PendingCommit
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
@@ -45,10 +46,10 @@ ENCODER_QUEUE_SLACK = 16  # frames beyond the longest episode LeRobot's streamin
 
 
 class WriterSession:
-    """One commit: a LeRobot writer session appending staged episodes to the dataset of `collector`.
+    """One commit: a LeRobot writer session appending staged episodes to the dataset of `session`.
 
     Args:
-        collector: the `collect.Collector` whose dataset, record, snapshot and staging folder are used.
+        session: the `session.DatasetSession` whose dataset, record, snapshot and staging folder are used.
         max_frames: the longest episode this session may get (LeRobot's streaming encoder drops frames
             once its queue is full, so the queue must hold a whole episode).
         timings: the run's timings; appends `episode_write_s` per episode (seconds), `session_s` per session
@@ -57,10 +58,10 @@ class WriterSession:
         run_t0: `time.perf_counter()` at the start of the run.
     """
 
-    def __init__(self, collector, max_frames: int, timings: dict | None = None, run_t0: float | None = None):
+    def __init__(self, session, max_frames: int, timings: dict | None = None, run_t0: float | None = None):
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-        self.collector = collector
+        self.session = session
         self.timings = {} if timings is None else timings
         self.run_t0 = run_t0  # perf_counter at the run's start, for the commit's `end_s`
         self.kept: list[dict] = []
@@ -70,14 +71,14 @@ class WriterSession:
         self._patches = contextlib.ExitStack()
         self.ds = None
         t0, c0 = time.perf_counter(), time.process_time()
-        collector.snapshot.take()
-        record = collector.record
+        session.snapshot.take()
+        record = session.record
         record.pending_commit = PendingCommit([], record.next_seed)
-        collector._save_record()
+        session.save_record()
         try:  # from here until `close` saves the record, the session is pending: any interruption rolls it back
-            cfg = collector.cfg
-            codec = collector.video_codec
-            self.ds = LeRobotDataset.resume(cfg.repo_id, root=collector.root, video_backend="pyav",
+            cfg = session.cfg
+            codec = session.video_codec
+            self.ds = LeRobotDataset.resume(cfg.repo_id, root=session.root, video_backend="pyav",
                                             streaming_encoding=cfg.use_videos,
                                             encoder_queue_maxsize=max_frames + ENCODER_QUEUE_SLACK,
                                             rgb_encoder=rgb_encoder(codec), encoder_threads=encoder_threads(codec))
@@ -106,20 +107,18 @@ class WriterSession:
     def add(self, summary: dict) -> None:
         """Append the staged episode of `summary` (add_frame per frame, save_episode)."""
         t0, c0 = time.perf_counter(), time.process_time()
-        collector, ds = self.collector, self.ds
+        session, ds = self.session, self.ds
         seed = int(summary["seed"])
         # the record names the seeds this pending session holds (and the next seed if it closed now)
-        collector.record.pending_commit = PendingCommit([b["seed"] for b in self.kept] + [seed], seed + 1)
-        collector._save_record()
+        session.record.pending_commit = PendingCommit([b["seed"] for b in self.kept] + [seed], seed + 1)
+        session.save_record()
         # a dataset begun before a newer optional annotation existed keeps its own features
-        cols = {k: v for k, v in load_staged(collector.staging, seed).items()
+        cols = {k: v for k, v in load_staged(session.staging, seed).items()
                 if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
         n = cols[S.ACTION].shape[0]
         if n != summary["length"]:
-            from lerobot_bavo.datasets.collect import CollectionError
-
             raise CollectionError(f"staged episode seed {seed} has {n} frames, its marker says {summary['length']}")
-        description = collector.settings["task_description"]
+        description = session.settings["task_description"]
         for t in range(n):
             frame = {k: v[t] for k, v in cols.items()}
             frame["task"] = description
@@ -132,14 +131,14 @@ class WriterSession:
         """Finalize, check the videos, record the episodes (the commit point), delete their staged files.
         `next_seed` defaults to the seed after the last episode. Returns the first new episode index."""
         t0, c0 = time.perf_counter(), time.process_time()
-        collector, record = self.collector, self.collector.record
+        session, record = self.session, self.session.record
         if next_seed is None:
             next_seed = int(self.kept[-1]["seed"]) + 1 if self.kept else record.next_seed
         try:
             self.ds.finalize()
             self._patches.close()
-            restore_default_mode(collector.root.glob("videos/*/*/*.mp4"))  # LeRobot's concatenated mp4s are 0600
-            collector._verify_videos(self.first_index, self.kept)
+            restore_default_mode(session.root.glob("videos/*/*/*.mp4"))  # LeRobot's concatenated mp4s are 0600
+            session.verify_videos(self.first_index, self.kept)
             for i, b in enumerate(self.kept):
                 record.episodes.append({"episode_index": self.first_index + i, "seed": b["seed"],
                                         "length": b["length"], "recoveries": b.get("recoveries")})
@@ -148,14 +147,14 @@ class WriterSession:
             record.next_seed = next_seed
             record.pending_commit = None
             record.complete = False
-            collector._save_record()
+            session.save_record()
         except BaseException:
             logger.warning("interrupted during a commit: rolling it back")
             self.abort()
             raise
         for s in self.kept + self.discards:
-            collector._drop_staged(s["seed"])
-        collector.snapshot.discard()
+            session.drop_staged(s["seed"])
+        session.snapshot.discard()
         self._account(t0, c0, overhead=True)
         self.timings.setdefault("session_s", []).append(round(self._overhead_s, 3))
         self.timings.setdefault("commits", []).append({
@@ -171,7 +170,7 @@ class WriterSession:
         if self.ds is not None:
             abandon_writer(self.ds)
         self._patches.close()
-        self.collector._rollback()
+        self.session.rollback()
 
 
 class StreamingWriter:
@@ -183,9 +182,9 @@ class StreamingWriter:
     reached its commit point is rolled back, and its episodes stay staged for the next run.
     """
 
-    def __init__(self, collector, needed: int, commit_every: int, max_frames: int, timings: dict,
+    def __init__(self, session, needed: int, commit_every: int, max_frames: int, timings: dict,
                  run_t0: float | None = None):
-        self.collector = collector
+        self.session = session
         self.needed, self.commit_every, self.max_frames = needed, commit_every, max_frames
         self.timings, self.run_t0 = timings, run_t0
         self.written = 0  # kept episodes saved into a session (committed or in the open one)
@@ -201,7 +200,7 @@ class StreamingWriter:
                 (self._session.add_discard if self._session is not None else self._held.append)(summary)
                 return
             if self._session is None:
-                self._session = WriterSession(self.collector, self.max_frames, self.timings, self.run_t0)
+                self._session = WriterSession(self.session, self.max_frames, self.timings, self.run_t0)
                 for d in self._held:
                     self._session.add_discard(d)
                 self._held = []

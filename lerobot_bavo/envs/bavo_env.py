@@ -97,11 +97,11 @@ class BavoEnv(gym.Env):
         self,
         task: str | Task = "cube_handoff",
         condition: str | Condition = "clean",
-        image_height: int = 240,
-        image_width: int = 320,
-        n_points: int = 256,
-        point_frame: str = "base",
-        fovy: float = C.ACTIVE_CAMERA_FOVY,
+        image_height: int = ObservationSettings.image_height,
+        image_width: int = ObservationSettings.image_width,
+        n_points: int = ObservationSettings.n_points,
+        point_frame: str = ObservationSettings.point_frame,
+        fovy: float = ObservationSettings.fovy,
         episode_length: int | None = None,
         render_mode: str | None = "rgb_array",
         render_height: int = 240,
@@ -368,6 +368,15 @@ class BavoEnv(gym.Env):
         depth back a second time is not settled (identical at 48 x 64 in tests/test_datasets.py, not shown at
         240 x 320), so the recorder does not use it yet."""
         return self._observation_depth
+
+    def render_active_rgb(self) -> np.ndarray:
+        """The active camera's RGB image (H, W, 3) uint8 of the current state, without building an observation
+        (no point cloud): what a live view shows between steps (`bavo-teleop`)."""
+        return self._render_active()[0]
+
+    def current_info(self) -> dict:
+        """The `info` a step would return for the current state; {} before the first `reset`."""
+        return self._info() if self._tracker is not None else {}
 
     def _render_active(self) -> tuple[np.ndarray, np.ndarray]:
         s = self.obs_settings

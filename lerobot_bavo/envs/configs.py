@@ -73,10 +73,11 @@ class BavoEnvConfig(EnvConfig):
     condition: str = "clean"
     fps: int = CONTROL_HZ
     episode_length: int | None = None
-    image_height: int = 240
-    image_width: int = 320
-    n_points: int = 256
-    point_frame: str = "base"
+    # observation defaults: ObservationSettings' own (one place for them)
+    image_height: int = ObservationSettings.image_height
+    image_width: int = ObservationSettings.image_width
+    n_points: int = ObservationSettings.n_points
+    point_frame: str = ObservationSettings.point_frame
     environment_state: bool = False
     render_mode: str = "rgb_array"
     features: dict[str, PolicyFeature] = field(

@@ -51,15 +51,10 @@ def run_job(job: dict) -> dict:
 
 def summarize_cell(records: list[dict]) -> dict:
     """SR, TPS, CVG (pp) and Joint of one (task, condition) cell (paper Sec. 3.3, App. A)."""
-    from lerobot_bavo.metrics import aggregate_cvg, joint_score, success_rate, task_progress_score
-
-    sr = success_rate([r["success"] for r in records])
-    tps = task_progress_score([r["progress"] for r in records])
-    cvg = aggregate_cvg([r.get("episode_cvg") for r in records])
-    cvg_pp = None if cvg is None else 100.0 * cvg
+    values = cell_metrics([r["success"] for r in records], [r["progress"] for r in records],
+                          [r.get("episode_cvg") for r in records])
     fallbacks = sum(p["fallback"] for r in records for p in r.get("placements", []))
-    return {"sr": sr, "tps": tps, "cvg": cvg_pp, "joint": joint_score(sr, cvg_pp),
-            "n_episodes": len(records), "occluder_fallbacks": fallbacks,
+    return {**values, "n_episodes": len(records), "occluder_fallbacks": fallbacks,
             "episodes": sorted(records, key=lambda r: r["seed"])}
 
 

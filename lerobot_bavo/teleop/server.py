@@ -285,9 +285,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8765, help="port (0: any free port)")
     p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (clear of eval seeds)")
     p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")
-    p.add_argument("--image-height", type=int, default=240)
-    p.add_argument("--image-width", type=int, default=320)
-    p.add_argument("--n-points", type=int, default=256)
+    default = ObservationSettings()  # the observation defaults, in one place
+    p.add_argument("--image-height", type=int, default=default.image_height)
+    p.add_argument("--image-width", type=int, default=default.image_width)
+    p.add_argument("--n-points", type=int, default=default.n_points)
     p.add_argument("--point-frame", default="base", choices=("base", "camera"))
     p.add_argument("--third-person-height", type=int, default=240, help="height of the third-person view (pixels)")
     p.add_argument("--replay", type=Path, default=None, metavar="INPUT_LOG",

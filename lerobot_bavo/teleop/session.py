@@ -5,7 +5,7 @@ and the dataset writing shared with `bavo-collect`.
   `bavo-collect` uses records a human episode with exactly the same columns and privileged state.
   Each `act` publishes the frame the operator sees, waits for the next 25 Hz tick, reads that
   tick's input, maps it to an action (`controls.TeleopController`) and logs the input.
-- Saving goes through `staging.stage_episode` (teacher cache) and `Collector._commit` (one LeRobot
+- Saving goes through `staging.stage_episode` (teacher cache) and `DatasetSession.commit` (one LeRobot
   writer session per episode, snapshot + rollback), so a saved episode survives any interruption
   of the server; the episode's input log is written to `meta/bavo_teleop/` first.
 - `replay_log` re-drives a logged episode without a browser: same env, same seed, same inputs,
@@ -255,24 +255,25 @@ class HumanDataset:
     Opening it takes `bavo-collect`'s lock on the folder, creates or checks the dataset (same schema,
     same settings check), rolls back a commit interrupted by a kill and commits episodes that were
     staged but not committed. `save()` writes the input log, stages the episode with its teacher cache
-    (`staging.stage_episode`) and commits it in its own LeRobot writer session (`Collector._commit`).
+    (`staging.stage_episode`) and commits it in its own LeRobot writer session (`DatasetSession.commit`).
     """
 
     def __init__(self, repo_id: str, root: Path | None, task: str, condition: str, settings: ObservationSettings,
                  episode_length: int | None, seed: int, command: str | None = None):
-        from lerobot_bavo.datasets.collect import CollectConfig, Collector
+        from lerobot_bavo.datasets.collect_config import CollectConfig
+        from lerobot_bavo.datasets.session import DatasetSession
 
         self.task, self.condition, self.settings, self.episode_length = task, condition, settings, episode_length
         ccfg = CollectConfig(task=task, condition=condition, episodes=1, repo_id=repo_id, root=root, workers=0,
                              seed=seed, commit_every=1, settings=settings, episode_length=episode_length,
                              keep_failures=True, progress=False, command=command)
-        self.collector = Collector(ccfg)
-        self.collector.settings["source"] = "human"  # recorded; with keep_failures it keeps expert runs out
-        self.root = self.collector.root
-        self._lock = self.collector._lock()
+        self.session = DatasetSession(ccfg)
+        self.session.settings["source"] = "human"  # recorded; with keep_failures it keeps expert runs out
+        self.root = self.session.root
+        self._lock = self.session.lock()
         try:
-            self.collector._open()
-            staged = self.collector._scan_staging(self.collector.record.next_seed)
+            self.session.open()
+            staged = self.session.scan_staging(self.session.record.next_seed)
             for seed_, summary in sorted(staged.items()):
                 if summary.get("kept"):  # saved, then the server was killed before the commit ended
                     logger.warning("committing episode seed %d, saved before an interruption", seed_)
@@ -284,14 +285,14 @@ class HumanDataset:
     @property
     def record(self):
         """The dataset's `CollectionRecord`."""
-        return self.collector.record
+        return self.session.record
 
     @property
     def next_seed(self) -> int:
-        return self.collector.record.next_seed
+        return self.session.record.next_seed
 
     def __len__(self) -> int:
-        return len(self.collector.record.episodes)
+        return len(self.session.record.episodes)
 
     def save(self, record, inputs: list[dict]) -> dict:
         """Append one recorded episode (and its input log); returns its entry in the collection record."""
@@ -302,24 +303,24 @@ class HumanDataset:
             raise ValueError(f"seed {seed} is below the dataset's next seed {self.next_seed}: already used")
         write_log(self.root / LOG_DIR / f"seed_{seed:08d}.jsonl",
                   log_header(self.task, self.condition, seed, self.settings, self.episode_length), inputs)
-        summary = stage_episode(record, self.collector.staging, kept=True)
+        summary = stage_episode(record, self.session.staging, kept=True)
         return self._commit(summary)
 
     def _commit(self, summary: dict) -> dict:
-        col = self.collector
+        col = self.session
         seed = int(summary["seed"])
-        col._commit([summary], [], max(col.record.next_seed, seed + 1))  # rolls itself back if interrupted
+        col.commit([summary], [], max(col.record.next_seed, seed + 1))  # rolls itself back if interrupted
         entry = col.record.episodes[-1]
         entry.update(source="human", success=bool(summary["success"]), progress=int(summary["progress"]),
                      input_log=str(LOG_DIR / f"seed_{seed:08d}.jsonl"))
-        col._save_record()
+        col.save_record()
         return entry
 
     def close(self) -> None:
         """Per-channel point-cloud statistics, the collection record and the dataset card; releases the lock."""
         if self._lock is None:
             return
-        col = self.collector
+        col = self.session
         try:
             n = len(self)
             if n == 0:  # nothing saved: an empty dataset (statistics need data)
@@ -328,7 +329,7 @@ class HumanDataset:
                 shutil.rmtree(col.staging, ignore_errors=True)
                 return
             col.cfg.episodes = n
-            col._finish({"started": time.strftime("%Y-%m-%d %H:%M:%S"), "requested": n, "committed_before": n,
+            col.finish({"started": time.strftime("%Y-%m-%d %H:%M:%S"), "requested": n, "committed_before": n,
                          "workers": 0, "attempts": 0, "reused_staged": 0, "tool": "bavo-teleop"}, 0.0)
         finally:
             self._lock.close()
@@ -637,8 +638,8 @@ class TeleopSession:
     def _on_frame(self, obs, info, agent, final: bool = False) -> None:
         env = self.recorder.env
         if obs is None:
-            obs = {"pixels": {"active": env._render_active()[0]}}
-            info = env._info() if env._tracker is not None else {}
+            obs = {"pixels": {"active": env.render_active_rgb()}}
+            info = env.current_info()
         header = self.status()
         header["type"] = "frame"
         if agent is not None:

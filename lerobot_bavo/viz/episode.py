@@ -32,6 +32,7 @@ from lerobot_bavo.features import (
     POSE_CHANNELS,
     TEACHER_Z0,
     TEACHER_ZF,
+    ObservationSettings,
 )
 from lerobot_bavo.sim.constants import ACTIVE_CAMERA_FOVY as DEFAULT_FOVY  # the active camera's vertical FoV, degrees
 
@@ -282,7 +283,7 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
             rgb = _decode_segment(vpath, float(row[f"videos/{key}/from_timestamp"]),
                                   float(row[f"videos/{key}/to_timestamp"]), float(info["fps"]), T)
     if H is None:
-        H, W = 240, 320
+        H, W = ObservationSettings.image_height, ObservationSettings.image_width
     fovy = float(settings.get("fovy", DEFAULT_FOVY))
     return EpisodeData(
         frame_index=frame_index,

@@ -40,7 +40,7 @@ def dataset_episode(ds, episode_index: int, fovy: float | None = None) -> Stored
 
     `fovy` (degrees) defaults to the one recorded in `meta/bavo_collection.json`.
     """
-    from lerobot_bavo.datasets.hub import read_sidecar
+    from lerobot_bavo.datasets.metadata import read_sidecar
     from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
 
     n = S.infer_n_points(ds.meta.features)
