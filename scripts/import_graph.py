@@ -149,6 +149,15 @@ def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
     return out
 
 
+def upward_arrows(edges: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """The imports that run from a lower layer up, per `FORBIDDEN`."""
+    def within(name: str, prefix: str) -> bool:
+        return name == prefix or name.startswith(prefix + ".")
+
+    return [(a, b) for a, targets in sorted(edges.items()) for b in sorted(targets)
+            for lo, hi in FORBIDDEN if within(a, lo) and within(b, hi)]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quiet", action="store_true", help="print the summary only")
@@ -156,13 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     paths = sorted((ROOT / PACKAGE).rglob("*.py"))
     modules, edges, private = scan(paths)
     loops = cycles(edges)
-    upward = [
-        (a, b)
-        for a, targets in sorted(edges.items())
-        for b in sorted(targets)
-        for lo, hi in FORBIDDEN
-        if (a == lo or a.startswith(lo + ".")) and (b == hi or b.startswith(hi + "."))
-    ]
+    upward = upward_arrows(edges)
     print(f"modules: {len(modules)}  import loops: {len(loops)}  upward arrows: {len(upward)}  "
           f"cross-module private uses: {len(private)}")
     if not args.quiet:
