@@ -214,8 +214,8 @@ def compare_paths(task: str, condition: str, episodes: int, steps: int | None) -
     paths["old"]._privileged_view = types.MethodType(_legacy_privileged_view, paths["old"])
     for rec in paths.values():
         rec.record(10_000)  # warm-up: first renders, imports
-    cpu = {name: 0.0 for name in paths}
-    frames = {name: 0 for name in paths}
+    cpu = dict.fromkeys(paths, 0.0)
+    frames = dict.fromkeys(paths, 0)
     identical = True
     for i in range(episodes):
         records = {}

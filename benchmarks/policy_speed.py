@@ -25,7 +25,6 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import torch  # noqa: E402
-
 from lerobot.configs import FeatureType, PolicyFeature  # noqa: E402
 
 from lerobot_bavo.policies import AfarConfig, AfarPolicy, ManiFlowConfig, ManiFlowPolicy  # noqa: E402

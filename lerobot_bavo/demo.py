@@ -17,7 +17,6 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
@@ -43,8 +42,8 @@ def run_demo(task: str, condition: str, seeds: list[int], output_dir: Path, agen
     from tqdm import tqdm
 
     from lerobot_bavo.envs.bavo_env import BavoEnv
-    from lerobot_bavo.metrics import success_rate, task_progress_score
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
+    from lerobot_bavo.metrics import success_rate, task_progress_score
 
     unknown = [a for a in agents if a not in AGENTS]
     if unknown:

@@ -51,7 +51,7 @@ def main() -> None:
     cfg.device = "cpu"
     policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
     pre, post = make_pre_post_processors(policy_cfg=cfg, pretrained_path=str(path))
-    obs_keys = [k for k in cfg.input_features]
+    obs_keys = list(cfg.input_features)
     to, n_exec = cfg.n_obs_steps, cfg.n_action_steps
 
     files = sorted(Path(args.root, "data").rglob("*.parquet"))

@@ -18,6 +18,7 @@ consistency parts, A-FAR's relational terms), one panel per key, one line per ru
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
 from pathlib import Path
 
@@ -56,10 +57,8 @@ def parse_log(path: Path, log_freq: int, start_step: int = 0) -> dict[str, list[
                 f"start_step={start_step} put it at {step}; pass the run's --log_freq"
             )
         for key, value in _PAIR.findall(match.group(2)):
-            try:
+            with contextlib.suppress(ValueError):
                 series.setdefault(key, []).append((step, float(value)))
-            except ValueError:
-                pass
         index += 1
     if not series:
         raise ValueError(f"{path}: no `lerobot-train` metric lines found")

@@ -11,7 +11,11 @@ import pyarrow.parquet as pq
 import pytest
 
 from lerobot_bavo.datasets import lerobot_private
-from lerobot_bavo.datasets.lerobot_private import arrow_episode_tables, arrow_table_of, skip_noop_image_embedding
+from lerobot_bavo.datasets.lerobot_private import (
+    arrow_episode_tables,
+    arrow_table_of,
+    skip_noop_image_embedding,
+)
 
 FEATURES = datasets.Features({
     "observation.point_cloud": datasets.List(datasets.Value("float32"), length=12),
@@ -73,9 +77,8 @@ def test_anything_else_takes_datasets_own_path(change):
 def test_lerobot_writes_the_same_files_with_direct_tables(tmp_path, monkeypatch):
     """Two episodes of BAVO-like columns through LeRobot's writer with and without the replacement: every
     data and episode-metadata file is the same bytes, and the replacement did build the tables."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     import lerobot.datasets.dataset_writer as writer_mod
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     features = {
         "observation.images.active": {"dtype": "video", "shape": (24, 32, 3), "names": ["height", "width", "channels"]},

@@ -354,8 +354,8 @@ class _PixelTeacher:
 
 
 def test_a_learned_teacher_recomputes_the_cache_of_a_stored_dataset(dataset_root, tmp_path):
-    from lerobot_bavo.teacher import Teacher, make_clip
     from lerobot_bavo.datasets.teacher_cache import dataset_episode, recompute_teacher_cache
+    from lerobot_bavo.teacher import Teacher, make_clip
 
     assert isinstance(_PixelTeacher(), Teacher)
     ds = load_bavo_dataset(REPO, root=dataset_root)
@@ -563,7 +563,6 @@ def test_ctrl_c_with_a_writer_session_open_rolls_it_back(tmp_path, monkeypatch):
     """Ctrl+C in the main loop while the writer holds an open, uncommitted session: the session is rolled
     back, its episodes stay staged, and the next run commits them without recording them again."""
     import lerobot_bavo.datasets.collect as collect_mod
-
     from lerobot_bavo.datasets.writer import WriterSession
 
     calls: list[int] = []

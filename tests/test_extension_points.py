@@ -17,8 +17,8 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.conditions import CONDITIONS, Condition, register_condition
 from lerobot_bavo.envs.configs import BavoEnvConfig
 from lerobot_bavo.envs.tasks import TASKS, Task, register_task
-from lerobot_bavo.eval.run import run_job
 from lerobot_bavo.eval.rollout import make_agent, run_episode
+from lerobot_bavo.eval.run import run_job
 from lerobot_bavo.experts import EXPERTS, ScriptedExpert, register_expert
 from lerobot_bavo.sim import constants as C
 

@@ -170,8 +170,8 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
         LeRobotPolicyAgent(checkpoint, wrong)
 
     # a ManiFlow fed another point count (e.g. by lerobot-eval --env.n_points) names the feature
-    from lerobot.policies.factory import make_pre_post_processors
     from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import make_pre_post_processors
 
     cfg = PreTrainedConfig.from_pretrained(checkpoint)
     pre, _ = make_pre_post_processors(cfg, pretrained_path=str(checkpoint))
@@ -299,7 +299,7 @@ def test_a_torn_last_log_line_is_dropped_and_a_corrupt_middle_line_is_named(tmp_
         """A file whose device fills after `room` bytes: the write stops mid-line, as with ENOSPC."""
 
         def __init__(self, path: Path, room: int):
-            self.fh, self.room = open(path, "w"), room
+            self.fh, self.room = open(path, "w"), room  # noqa: SIM115  (closed by close(), like a log file)
 
         def write(self, text: str) -> None:
             if len(text) > self.room:
@@ -400,8 +400,8 @@ def test_two_bavo_eval_runs_on_one_folder(tmp_path):
 
 # ----------------------------------------------------------------------------- 5. locks
 def test_locks_hold_across_symlinked_spellings_and_for_bavo_eval(tmp_path):
-    from lerobot_bavo.datasets.collect import CollectConfig, CollectionError, Collector
     from lerobot_bavo.datasets import schema as S
+    from lerobot_bavo.datasets.collect import CollectConfig, CollectionError, Collector
     from lerobot_bavo.eval.cli import evaluate
     from lerobot_bavo.runtime.process import LockedError, exclusive_lock
 
@@ -469,10 +469,11 @@ def test_env_stops_after_the_episode_ends_and_renders_nothing_without_a_render_m
 
 
 def test_bad_dataset_metadata_and_nan_are_named(tmp_path):
-    from lerobot_bavo.datasets.hub import read_info, read_sidecar, read_stats
-    from lerobot_bavo.policies.maniflow.processor_maniflow import make_maniflow_pre_post_processors
-    from lerobot_bavo.policies import ManiFlowConfig
     from lerobot.configs import FeatureType, PolicyFeature
+
+    from lerobot_bavo.datasets.hub import read_info, read_sidecar, read_stats
+    from lerobot_bavo.policies import ManiFlowConfig
+    from lerobot_bavo.policies.maniflow.processor_maniflow import make_maniflow_pre_post_processors
 
     meta = tmp_path / "meta"
     meta.mkdir()

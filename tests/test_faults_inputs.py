@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from test_faults import _copy, _save_checkpoint, _small_env
 
 
@@ -91,7 +90,7 @@ def test_size_bounds_fit_the_paper_preset_and_name_the_limit():
     with pytest.raises(ValueError, match=r"feature 'observation.state' has shape \[50000000\]: at most"):
         ManiFlowConfig(preset="cpu", device="cpu", input_features={
             "observation.state": PolicyFeature(FeatureType.STATE, (50_000_000,))})
-    assert 12 * 768**2 < MAX_STACK_SIZE
+    assert MAX_STACK_SIZE > 12 * 768**2
     assert bound_problems({"dit_mlp_ratio": float("nan"), "n_points": True, "unrelated": -1}) == [
         "`dit_mlp_ratio` must be in [0.01, 16.0], got nan", "`n_points` must be an integer in [2, 16384], got True"]
 
@@ -304,8 +303,9 @@ def test_a_full_disk_while_writing_results_leaves_the_previous_results_whole(tmp
     """Before: results.json was written in place, so a full disk left invalid JSON beside the previous results.md.
     Now results.json and results.md are written through temporaries and renamed together: a failed write ends
     the run with a message, leaves both previous files as they were (valid), and the re-run finishes them."""
-    from lerobot_bavo.eval import cli, run
     from test_faults import _fake_eval
+
+    from lerobot_bavo.eval import cli, run
 
     monkeypatch.setattr(run, "run_job", _fake_run_job)
     out = tmp_path / "eval"

@@ -14,7 +14,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-
 from lerobot.configs import FeatureType
 from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env, make_env_config
@@ -22,8 +21,8 @@ from lerobot.envs.utils import env_to_policy_features, preprocess_observation
 
 import lerobot_bavo  # noqa: F401  (registers the gym ids and the "bavo" env type)
 from lerobot_bavo.envs import gym_id, register_envs
-from lerobot_bavo.envs.configs import BavoEnvConfig
 from lerobot_bavo.envs.conditions import CONDITIONS
+from lerobot_bavo.envs.configs import BavoEnvConfig
 from lerobot_bavo.envs.tasks import TASKS
 
 REPO = Path(__file__).resolve().parents[1]

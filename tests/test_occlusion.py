@@ -25,8 +25,8 @@ from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.conditions import OcclusionSchedule
 from lerobot_bavo.envs.occlusion import stage_index
 from lerobot_bavo.envs.visibility import panel_hides
-from lerobot_bavo.metrics import CVGAccumulator
 from lerobot_bavo.experts import make_expert
+from lerobot_bavo.metrics import CVGAccumulator
 from lerobot_bavo.sim.rendering import SceneRenderer
 
 SMALL = dict(image_height=48, image_width=64, n_points=16, render_mode=None)

@@ -39,11 +39,11 @@ def _exact_uniform_marginals(windows, min_gap):
     """P(t_k = t) under the uniform distribution over feasible schedules, by counting paths."""
     n = len(windows)
     ranges = [range(lo, hi + 1) for lo, hi in windows]
-    fwd = [{t: 1 for t in ranges[0]}]  # number of feasible prefixes ending at t
+    fwd = [dict.fromkeys(ranges[0], 1)]  # number of feasible prefixes ending at t
     for k in range(1, n):
         fwd.append({t: sum(c for p, c in fwd[-1].items() if t - p > min_gap) for t in ranges[k]})
     bwd = [None] * n  # number of feasible suffixes starting at t
-    bwd[-1] = {t: 1 for t in ranges[-1]}
+    bwd[-1] = dict.fromkeys(ranges[-1], 1)
     for k in range(n - 2, -1, -1):
         bwd[k] = {t: sum(c for q, c in bwd[k + 1].items() if q - t > min_gap) for t in ranges[k]}
     total = sum(fwd[-1].values())

@@ -10,7 +10,6 @@ import draccus
 import pytest
 import torch
 import torch.nn.functional as F  # noqa: N812
-
 from lerobot.configs import FeatureType, PolicyFeature, PreTrainedConfig
 
 import lerobot_bavo.policies  # noqa: F401  (registers "maniflow" and "afar")
@@ -230,7 +229,7 @@ def test_teacher_keys_are_training_only(cls_cfg):
     assert set(config.input_features) == {PC, STATE}
     policy = policy_cls(config).eval()
     obs = observation()  # no teacher keys
-    for step in range(config.n_action_steps + 1):  # crosses a chunk boundary
+    for _ in range(config.n_action_steps + 1):  # crosses a chunk boundary
         action = policy.select_action(dict(obs))
         assert action.shape == (1, ACTION_DIM) and torch.isfinite(action).all()
     chunk = policy.predict_action_chunk({PC: obs[PC][:, None].repeat(1, 2, 1, 1), STATE: obs[STATE][:, None]
@@ -439,7 +438,12 @@ def synthetic_stats() -> dict[str, dict[str, torch.Tensor]]:
 
 @pytest.mark.parametrize("name", ["maniflow", "afar"])
 def test_lerobot_factory_and_processors(name, tmp_path):
-    from lerobot.policies.factory import get_policy_class, make_policy, make_policy_config, make_pre_post_processors
+    from lerobot.policies.factory import (
+        get_policy_class,
+        make_policy,
+        make_policy_config,
+        make_pre_post_processors,
+    )
 
     assert {"maniflow", "afar"} <= set(PreTrainedConfig.get_known_choices())
     assert get_policy_class(name) is {"maniflow": ManiFlowPolicy, "afar": AfarPolicy}[name]

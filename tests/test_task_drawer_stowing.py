@@ -11,6 +11,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from _helpers import EditedScene, milestone_flags
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import drawer_stowing as T
@@ -21,7 +22,6 @@ from lerobot_bavo.experts.drawer_stowing import DrawerStowingExpert
 from lerobot_bavo.sim.constants import MANIPULATOR_HOME, MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
 from lerobot_bavo.sim.transforms import rot_from_axes, yaw_quat
-from _helpers import EditedScene, milestone_flags
 
 OPEN = 0.037  # finger slide (m), fully open
 BAR_GRIP = T.HANDLE_RADIUS - 0.0005  # pads 0.5 mm inside the bar's surface

@@ -12,6 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from _helpers import EditedScene, milestone_flags
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import make_task
@@ -20,7 +21,6 @@ from lerobot_bavo.experts import make_expert
 from lerobot_bavo.sim.constants import MANIPULATOR_HOME, MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
 from lerobot_bavo.sim.transforms import rot_from_axes
-from _helpers import EditedScene, milestone_flags
 
 PAD_DEPTH_HALF = 0.016  # finger pad half depth along the approach axis (robot.py)
 PAD_THICKNESS = 0.008

@@ -11,6 +11,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from _helpers import EditedScene, milestone_flags
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import TASKS, make_task
@@ -18,7 +19,6 @@ from lerobot_bavo.envs.tasks.base import MilestoneTracker
 from lerobot_bavo.sim.constants import MANIPULATOR_HOME, MANIPULATOR_JOINTS
 from lerobot_bavo.sim.kinematics import ArmKinematics
 from lerobot_bavo.sim.transforms import rot_from_axes
-from _helpers import EditedScene, milestone_flags
 
 CUBE_HALF = 0.025
 PLATE_RADIUS = 0.07
@@ -56,7 +56,8 @@ class Scene(EditedScene):
         assert np.linalg.norm(site.xpos - pos) < 3e-4, "test setup: gripper placement failed"
         return site.xmat.reshape(3, 3).copy()
 
-    def place_free(self, joint_id: int, pos, rot=np.eye(3), vel=(0, 0, 0)) -> None:
+    def place_free(self, joint_id: int, pos, rot=None, vel=(0, 0, 0)) -> None:
+        rot = np.eye(3) if rot is None else rot
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, np.ascontiguousarray(rot, dtype=np.float64).reshape(9))
         adr = self.m.jnt_qposadr[joint_id]
@@ -66,7 +67,7 @@ class Scene(EditedScene):
         self.d.qvel[dof:dof + 6] = 0.0
         self.d.qvel[dof:dof + 3] = vel
 
-    def place_cube(self, pos, rot=np.eye(3), vel=(0, 0, 0)) -> None:
+    def place_cube(self, pos, rot=None, vel=(0, 0, 0)) -> None:
         self.place_free(self.task.cube_joint, pos, rot, vel)
 
     def plate_xyz(self) -> np.ndarray:

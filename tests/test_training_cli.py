@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from lerobot_bavo.datasets import schema as S
-from lerobot_bavo.features import TEACHER_PREFIX
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 from lerobot_bavo.datasets.views import make_view
+from lerobot_bavo.features import TEACHER_PREFIX
 
 SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 

@@ -109,9 +109,9 @@ def test_equals_lerobot_on_rendered_frames():
 
 def test_streaming_writer_gives_the_same_statistics_and_video(tmp_path):
     """The same frames through LeRobot's streaming writer with and without the replacement installed."""
+    import lerobot.datasets.compute_stats as stats_mod
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    import lerobot.datasets.compute_stats as stats_mod
     from lerobot_bavo.datasets.lerobot_private import deferred_video_frame_stats
 
     frames = rendered_frames(30)

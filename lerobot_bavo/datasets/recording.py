@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lerobot_bavo.datasets import schema as S
-from lerobot_bavo.features import ObservationSettings, flatten_points
 from lerobot_bavo.envs.occlusion import stage_index
 from lerobot_bavo.envs.pointcloud import intrinsics_from_fovy
 from lerobot_bavo.experts.perturbation import ExecutionNoise
+from lerobot_bavo.features import ObservationSettings, flatten_points
 from lerobot_bavo.sim import constants as C
 
 

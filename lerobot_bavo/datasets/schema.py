@@ -65,10 +65,10 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     PIXEL_CHANNELS,
     POINT_CHANNELS,
     POSE_CHANNELS,
-    SOURCES,
+    SOURCES,  # noqa: F401  (re-exported: schema users read S.SOURCES)
     TEACHER_CHANNELS,
     TEACHER_KEYS,
-    TEACHER_OCCLUDER,
+    TEACHER_OCCLUDER,  # noqa: F401  (re-exported)
     TEACHER_VALID,
     TEACHER_VISIBLE,
     TEACHER_Z0,
@@ -77,7 +77,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     unflatten_points,
 )
 from lerobot_bavo.sim import constants as C
-from lerobot_bavo.teacher.protocol import ANCHOR_INDEX, CLIP_LENGTH, FUTURE_INDEX
+from lerobot_bavo.teacher.protocol import ANCHOR_INDEX, CLIP_LENGTH, FUTURE_INDEX  # noqa: F401  (re-exported)
 
 FPS = C.CONTROL_HZ  # 25
 

@@ -30,12 +30,6 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lerobot_bavo.envs.pointcloud import (
-    DEFAULT_STRIDE,
-    build_point_cloud,
-    camera_pose_from_mujoco,
-    intrinsics_from_fovy,
-)
 from lerobot_bavo.envs.conditions import Condition, OcclusionSchedule, get_condition
 from lerobot_bavo.envs.occlusion import (
     OCCLUDER_HALF_EXTENTS,
@@ -43,17 +37,23 @@ from lerobot_bavo.envs.occlusion import (
     OcclusionEvent,
     stage_index,
 )
+from lerobot_bavo.envs.pointcloud import (
+    DEFAULT_STRIDE,
+    build_point_cloud,
+    camera_pose_from_mujoco,
+    intrinsics_from_fovy,
+)
 from lerobot_bavo.envs.tasks import Task, make_task
+from lerobot_bavo.envs.visibility import TargetVisibility
 from lerobot_bavo.features import (
     ENV_ENV_STATE_KEY,
     ENV_POINT_CLOUD_KEY,
     ENV_POINT_PIXELS_KEY,
     ENV_STATE_KEY,
-    POINT_CHANNELS,
     PIXEL_CHANNELS,
+    POINT_CHANNELS,
     ObservationSettings,
 )
-from lerobot_bavo.envs.visibility import TargetVisibility
 from lerobot_bavo.metrics import NUM_MILESTONES, CVGAccumulator
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.kinematics import make_arm_kinematics

@@ -102,9 +102,8 @@ class BavoEnvConfig(EnvConfig):
             raise ValueError(f"fps={self.fps} but BAVO-Bench is controlled at {CONTROL_HZ} Hz")
         # Image size, n_points and point_frame: the same checks as the env's and the datasets'.
         ObservationSettings(self.image_height, self.image_width, self.n_points, self.point_frame)
-        if self.episode_length is not None:
-            if self.episode_length < 1:
-                raise ValueError(f"episode_length must be >= 1 or None, got {self.episode_length}")
+        if self.episode_length is not None and self.episode_length < 1:
+            raise ValueError(f"episode_length must be >= 1 or None, got {self.episode_length}")
 
         self.features[ENV_STATE_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(ACTION_DIM,))
         self.features[ENV_IMAGE_KEY] = PolicyFeature(

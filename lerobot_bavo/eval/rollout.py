@@ -49,6 +49,7 @@ class LeRobotPolicyAgent:
         import torch
         from lerobot.policies.factory import make_policy, make_pre_post_processors
 
+        from lerobot_bavo import register_lerobot_types
         from lerobot_bavo.checkpoints import (
             CheckpointMismatchError,
             check_processor_steps,
@@ -58,7 +59,6 @@ class LeRobotPolicyAgent:
             load_policy_config,
             mismatches,
         )
-        from lerobot_bavo import register_lerobot_types
         from lerobot_bavo.envs.configs import BavoEnvConfig
 
         register_lerobot_types()  # a light worker process has not registered them yet

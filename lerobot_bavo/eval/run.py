@@ -290,12 +290,13 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
     if done:
         print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
 
-    with open(log_path, "ab", buffering=0) as log, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
-        with _make_pool(executor, workers, jobs, ray_address) as pool:
-            for record in pool.imap(run_job, jobs):
-                done[(record["task"], record["condition"], record["seed"])] = record
-                append_record(log, record)
-                bar.update(1)
+    with (open(log_path, "ab", buffering=0) as log,
+          tqdm(total=len(jobs), desc="episodes", unit="ep") as bar,
+          _make_pool(executor, workers, jobs, ray_address) as pool):
+        for record in pool.imap(run_job, jobs):
+            done[(record["task"], record["condition"], record["seed"])] = record
+            append_record(log, record)
+            bar.update(1)
 
     cells = {}
     for task in tasks:

@@ -14,8 +14,8 @@ import numpy as np
 
 from lerobot_bavo.envs.tasks.slide_retrieval import BLADE_HALF, HANDLE_OFFSET, PLATFORM_HALF
 from lerobot_bavo.experts.base import ScriptedExpert
-from lerobot_bavo.sim.transforms import topdown_rot, yaw_of
 from lerobot_bavo.sim.robot import FINGER_PAD_HALF
+from lerobot_bavo.sim.transforms import topdown_rot, yaw_of
 
 TARGET_EXPOSURE = 0.065  # m of handle past the edge after the slide
 PRESS_DEPTH = 0.012  # m the commanded pad tips go below the blade's top face

@@ -14,6 +14,7 @@ their per-episode arrays are large enough that glibc would otherwise map and zer
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -142,10 +143,8 @@ class FolderLock:
         (`exclusive_lock`): two runs never both hold one folder."""
         if self._handle is None:
             return
-        try:
+        with contextlib.suppress(OSError):  # a read-only parent: the stale (unlocked) file is harmless
             self.path.unlink(missing_ok=True)
-        except OSError:  # a read-only parent: the stale (unlocked) file is harmless
-            pass
         self._handle.close()
         self._handle = None
 
@@ -169,7 +168,7 @@ def exclusive_lock(folder: str | Path, tool: str) -> FolderLock:
     real.parent.mkdir(parents=True, exist_ok=True)
     path = real.parent / f".{real.name}.{tool}.lock"
     while True:
-        handle = open(path, "a")
+        handle = open(path, "a")  # noqa: SIM115  (held open while locked: FolderLock closes it)
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

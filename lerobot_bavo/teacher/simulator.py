@@ -151,7 +151,7 @@ def teacher_targets(episode, teacher=None, n_future: int = 15, clip_length: int 
     """
     teacher = teacher if teacher is not None else SimulatorTeacher(with_visibility=True)
     future = anchor_index + n_future
-    if not (0 < n_future and future < clip_length):
+    if not (n_future > 0 and future < clip_length):
         raise ValueError(f"anchor_index + n_future = {future} must lie in the clip [0, {clip_length})")
     pixels = np.asarray(episode.point_pixels)
     T, N = pixels.shape[:2]

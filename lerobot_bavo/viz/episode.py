@@ -14,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_bavo.datasets.schema import N_FUTURE as FUTURE_OFFSET  # zf answers for frame t + 15, camera frame of t + 15
-from lerobot_bavo.envs.occlusion import OCCLUDER_HALF_EXTENTS  # (thickness, width, height) / 2 in its frame, metres
+# re-exported for viz.entities: zf answers for frame t + 15 (camera frame of t + 15); the occluder's
+# (thickness, width, height) / 2 in its frame, metres
+from lerobot_bavo.datasets.schema import N_FUTURE as FUTURE_OFFSET  # noqa: F401
+from lerobot_bavo.envs.occlusion import OCCLUDER_HALF_EXTENTS  # noqa: F401
 from lerobot_bavo.features import (
     ACTION,
     ANN_ACTIVE,
@@ -29,12 +31,13 @@ from lerobot_bavo.features import (
     OBS_IMAGE,
     OBS_POINT_CLOUD,
     POINT_CHANNELS,
-    POSE_CHANNELS,
     TEACHER_Z0,
     TEACHER_ZF,
     ObservationSettings,
 )
-from lerobot_bavo.sim.constants import ACTIVE_CAMERA_FOVY as DEFAULT_FOVY  # the active camera's vertical FoV, degrees
+from lerobot_bavo.sim.constants import (
+    ACTIVE_CAMERA_FOVY as DEFAULT_FOVY,  # the active camera's vertical FoV, degrees
+)
 
 
 @dataclass
@@ -93,9 +96,7 @@ class EpisodeData:
         out = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, np.ndarray) and f.name != "K":
-                v = v[:n]
-            elif isinstance(v, list):
+            if isinstance(v, np.ndarray) and f.name != "K" or isinstance(v, list):
                 v = v[:n]
             elif isinstance(v, dict) and f.name in ("action_chunk", "chunk_paths"):
                 v = {k: x for k, x in v.items() if k < n}
@@ -232,7 +233,7 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
     table = pads.dataset(data_file, format="parquet").to_table(
         columns=columns, filter=pads.field("episode_index") == episode)
     T = table.num_rows
-    if T != row["length"]:
+    if row["length"] != T:
         raise ValueError(f"{data_file}: episode {episode} has {T} rows, meta/episodes says {row['length']}")
 
     def col(key: str, width: int | None = None) -> np.ndarray | None:

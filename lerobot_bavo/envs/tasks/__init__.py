@@ -28,7 +28,7 @@ def gym_name(task: str) -> str:
     return "".join(part.capitalize() for part in task.split("_"))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def environment_state_dim(name: str) -> int:
     """Size of a task's `environment_state` (7 per object pose), read from its compiled model once."""
     import mujoco

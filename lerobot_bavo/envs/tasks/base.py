@@ -141,7 +141,7 @@ class Task(abc.ABC):
         self._pose_body_ids = {pose: model.body(body).id for pose, body in self.pose_bodies.items()}
         self.bind_objects(model)
 
-    def bind_objects(self, model: mujoco.MjModel) -> None:
+    def bind_objects(self, model: mujoco.MjModel) -> None:  # noqa: B027  (optional hook: a task may bind nothing)
         """Look up and cache the task's own ids (bodies, joints, geoms) once per compiled model."""
 
     @abc.abstractmethod

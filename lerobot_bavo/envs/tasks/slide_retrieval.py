@@ -206,9 +206,10 @@ class SlideRetrieval(Task):
         n = data.ncon
         for i in range(n):
             g1, g2 = int(data.contact.geom1[i]), int(data.contact.geom2[i])
-            if (g1 == self.handle_geom and g2 in self.left.all) or (g2 == self.handle_geom and g1 in self.left.all):
-                if self.to_platform(data, data.contact.pos[i])[0] < -PLATFORM_HALF[0]:
-                    return True
+            touching = (g1 == self.handle_geom and g2 in self.left.all) or (
+                g2 == self.handle_geom and g1 in self.left.all)
+            if touching and self.to_platform(data, data.contact.pos[i])[0] < -PLATFORM_HALF[0]:
+                return True
         return False
 
     def evaluate(self, model, data) -> dict[str, bool]:
