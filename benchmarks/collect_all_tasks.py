@@ -5,7 +5,8 @@ after the other, each into a fresh folder, and prints per task: wall time from l
 imports, workers, every episode, the last write), episodes kept and discarded, frames, and bytes per frame
 with and without the video. Run it on an otherwise idle machine: the wall time is the figure.
 
-    python benchmarks/collect_all_tasks.py [--episodes 100] [--tasks cube_handoff,...] [--output-dir DIR] [--keep]
+    python benchmarks/collect_all_tasks.py [--episodes 100] [--tasks cube_handoff,...] [--output-dir DIR]
+    [--keep]
 """
 
 from __future__ import annotations
@@ -34,7 +35,9 @@ def main() -> None:
     ap.add_argument("--tasks", default=",".join(TASKS))
     ap.add_argument("--condition", default="stage")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--output-dir", type=Path, default=None, help="where the datasets go (default: a temporary folder)")
+    ap.add_argument(
+        "--output-dir", type=Path, default=None, help="where the datasets go (default: a temporary folder)"
+    )
     ap.add_argument("--keep", action="store_true", help="keep the datasets")
     args = ap.parse_args()
     out = args.output_dir or Path(tempfile.mkdtemp(prefix="bavo_collect_all_"))
@@ -63,16 +66,25 @@ def main() -> None:
                      "kb_per_frame_without_video": round(rest / frames / 1024, 2),
                      "kb_per_frame_video": round(video / frames / 1024, 2), "load_before": round(load, 2)})
         r = rows[-1]
-        print(f"{task:18s} {wall / 60:5.1f} min ({wall:6.1f} s)  {r['episodes']} kept, {r['discarded']} discarded, "
-              f"{frames} frames, {r['kb_per_frame_without_video']:.1f} KB/frame without video + "
-              f"{r['kb_per_frame_video']:.1f} KB video; load before {load:.2f}", flush=True)
+        print(
+            f"{task:18s} {wall / 60:5.1f} min ({wall:6.1f} s)  {r['episodes']} kept, {r['discarded']} "
+            "discarded, "
+            f"{frames} frames, {r['kb_per_frame_without_video']:.1f} KB/frame without video + "
+            f"{r['kb_per_frame_video']:.1f} KB video; load before {load:.2f}",
+            flush=True,
+        )
         if not args.keep:
             shutil.rmtree(root, ignore_errors=True)
-    print("\n| task | wall (min) | episodes kept / discarded | frames | KB/frame without video | video KB/frame |")
+    print(
+        "\n| task | wall (min) | episodes kept / discarded | frames | KB/frame without video | video "
+        "KB/frame |"
+    )
     print("|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['task']} | {r['wall_s'] / 60:.1f} | {r['episodes']} / {r['discarded']} | {r['frames']} | "
-              f"{r['kb_per_frame_without_video']:.1f} | {r['kb_per_frame_video']:.1f} |")
+        print(
+            f"| {r['task']} | {r['wall_s'] / 60:.1f} | {r['episodes']} / {r['discarded']} | {r['frames']} | "
+            f"{r['kb_per_frame_without_video']:.1f} | {r['kb_per_frame_video']:.1f} |"
+        )
     print(json.dumps(rows))
     if args.output_dir is None and not args.keep:
         shutil.rmtree(out, ignore_errors=True)

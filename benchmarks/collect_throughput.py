@@ -17,7 +17,8 @@ recorded by the collector in the run's `timings`), each writer session's open + 
 and the wall time between commits per episode; printed in groups of 10 with the ratio of the last 10
 to the first 10, and plotted with `--plot FILE.png`. A full 100-episode run:
 
-    python benchmarks/collect_throughput.py --episodes 100 --commit-every 10 --plot docs/results/collect_cost.png
+    python benchmarks/collect_throughput.py --episodes 100 --commit-every 10 --plot
+    docs/results/collect_cost.png
 
     python benchmarks/collect_throughput.py [--episodes 6] [--workers 2] [--task cube_handoff] [--keep]
 
@@ -75,12 +76,16 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=6)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--commit-every", type=int, default=2)
-    ap.add_argument("--root", type=Path, default=None, help="dataset folder (default: a temporary one, removed)")
+    ap.add_argument(
+        "--root", type=Path, default=None, help="dataset folder (default: a temporary one, removed)"
+    )
     ap.add_argument("--keep", action="store_true", help="keep the temporary dataset")
     ap.add_argument("--plot", type=Path, default=None, help="write the per-episode cost curve to this PNG")
     ap.add_argument("--compare-paths", type=int, default=0, metavar="N",
                     help="instead of a collection: old vs new worker path on N seeds each, in one process")
-    ap.add_argument("--compare-steps", type=int, default=None, help="episode length limit for --compare-paths")
+    ap.add_argument(
+        "--compare-steps", type=int, default=None, help="episode length limit for --compare-paths"
+    )
     args = ap.parse_args()
     if args.compare_paths:
         compare_paths(args.task, args.condition, args.compare_paths, args.compare_steps)
@@ -102,9 +107,19 @@ def main() -> None:
         root = tmp / "ds"
     load0 = os.getloadavg()
     t0 = time.perf_counter()
-    summary = C.collect(C.CollectConfig(task=args.task, condition=args.condition, episodes=args.episodes,
-                                        repo_id="bench/bavo_throughput", root=root, workers=args.workers,
-                                        commit_every=args.commit_every, settings=ObservationSettings(), progress=False))
+    summary = C.collect(
+        C.CollectConfig(
+            task=args.task,
+            condition=args.condition,
+            episodes=args.episodes,
+            repo_id="bench/bavo_throughput",
+            root=root,
+            workers=args.workers,
+            commit_every=args.commit_every,
+            settings=ObservationSettings(),
+            progress=False,
+        )
+    )
     wall = time.perf_counter() - t0
     load1 = os.getloadavg()
 
@@ -122,7 +137,9 @@ def main() -> None:
     steady = 60.0 * n_after / (commits[-1]["t"] - commits[0]["t"]) if len(commits) > 1 else float("nan")
     first_batch = len(commits[0]["episodes"]) if commits else 0
     # start-up + first batch at the steady rate already counted: extrapolate from the first commit on
-    extrap_100 = (commits[0]["t"] - t0) + (100 - first_batch) * 60.0 / steady if steady == steady else float("nan")
+    extrap_100 = (
+        (commits[0]["t"] - t0) + (100 - first_batch) * 60.0 / steady if steady == steady else float("nan")
+    )
 
     worker_cpu = sum(e.get("cpu_s", 0.0) for e in eps) / max(1, len(eps))
     write_cpu = sum(c["cpu"] for c in commits) / max(1, len(eps))
@@ -135,31 +152,59 @@ def main() -> None:
 
     mean = lambda k: sum(e.get(k, 0.0) for e in eps) / max(1, len(eps))  # noqa: E731
     write_per_ep = sum(c["seconds"] for c in commits) / max(1, len(eps))
-    print(f"\n== {args.episodes} x {args.task} / {args.condition}, {args.workers} workers, 240x320, 256 points ==")
+    print(
+        f"\n== {args.episodes} x {args.task} / {args.condition}, {args.workers} workers, 240x320, 256 points "
+        "=="
+    )
     print(f"load average before / after: {load0[0]:.1f} / {load1[0]:.1f} (2 cores)")
-    print(f"kept {summary['episodes']} episodes ({frames} frames, {frames / max(1, summary['episodes']):.0f} per episode), "
-          f"discarded {summary['discarded']}")
+    print(
+        f"kept {summary['episodes']} episodes ({frames} frames, {frames / max(1, summary['episodes']):.0f} "
+        "per episode), "
+        f"discarded {summary['discarded']}"
+    )
     print(f"wall {wall:.1f} s -> {60 * summary['episodes'] / wall:.2f} episodes/min overall; "
           f"start-up until the first commit {startup:.1f} s")
     print(f"steady state (first -> last commit): {steady:.2f} episodes/min")
     print(f"EXTRAPOLATED 100 episodes: {extrap_100 / 60:.1f} min (target < 15 min)")
-    print(f"per episode: worker {mean('episode_s'):.1f} s (sim + expert + renders), teacher {mean('teacher_s'):.2f} s, "
-          f"staging {mean('stage_s'):.2f} s; main-process LeRobot write (parquet + stats + video encode) {write_per_ep:.1f} s")
-    print(f"CPU per episode: worker {worker_cpu:.1f} s + main-process write {write_cpu:.1f} s = {cpu_per_ep:.1f} s "
-          f"-> on {min(args.workers, os.cpu_count() or 1)} otherwise idle cores at most {ideal_rate:.2f} episodes/min, "
-          f"100 episodes in ~{100 / ideal_rate:.1f} min + start-up (CPU-bound estimate)")
-    print(f"bytes/frame: without video {(data + meta) / frames / 1024:.1f} KB (data {data / frames / 1024:.1f} KB, "
-          f"meta {meta / frames / 1024:.2f} KB); video {video / frames / 1024:.2f} KB; total "
-          f"{(data + meta + video) / frames / 1024:.1f} KB (target <= 40 KB without video)")
+    print(
+        f"per episode: worker {mean('episode_s'):.1f} s (sim + expert + renders), teacher "
+        f"{mean('teacher_s'):.2f} s, "
+        f"staging {mean('stage_s'):.2f} s; main-process LeRobot write (parquet + stats + video encode) "
+        f"{write_per_ep:.1f} s"
+    )
+    print(
+        f"CPU per episode: worker {worker_cpu:.1f} s + main-process write {write_cpu:.1f} s = "
+        f"{cpu_per_ep:.1f} s "
+        f"-> on {min(args.workers, os.cpu_count() or 1)} otherwise idle cores at most {ideal_rate:.2f} "
+        "episodes/min, "
+        f"100 episodes in ~{100 / ideal_rate:.1f} min + start-up (CPU-bound estimate)"
+    )
+    print(
+        f"bytes/frame: without video {(data + meta) / frames / 1024:.1f} KB (data {data / frames / 1024:.1f} "
+        "KB, "
+        f"meta {meta / frames / 1024:.2f} KB); video {video / frames / 1024:.2f} KB; total "
+        f"{(data + meta + video) / frames / 1024:.1f} KB (target <= 40 KB without video)"
+    )
     print("parquet bytes/frame per column:")
     for k, v in sorted(cols.items(), key=lambda kv: -kv[1]):
         print(f"  {k:<34} {v / frames:8.0f} B")
-    print(json.dumps({"wall_s": round(wall, 1), "startup_s": round(startup, 1), "episodes_per_min_overall":
-                      round(60 * summary["episodes"] / wall, 2), "episodes_per_min_steady": round(steady, 2),
-                      "extrapolated_100_min": round(extrap_100 / 60, 1), "kb_per_frame_without_video":
-                      round((data + meta) / frames / 1024, 2), "kb_per_frame_video": round(video / frames / 1024, 2),
-                      "worker_s_per_episode": round(mean("episode_s"), 2), "write_s_per_episode": round(write_per_ep, 2),
-                      "cpu_s_per_episode": round(cpu_per_ep, 2), "cpu_bound_100_min": round(100 / ideal_rate, 1)}))
+    print(
+        json.dumps(
+            {
+                "wall_s": round(wall, 1),
+                "startup_s": round(startup, 1),
+                "episodes_per_min_overall": round(60 * summary["episodes"] / wall, 2),
+                "episodes_per_min_steady": round(steady, 2),
+                "extrapolated_100_min": round(extrap_100 / 60, 1),
+                "kb_per_frame_without_video": round((data + meta) / frames / 1024, 2),
+                "kb_per_frame_video": round(video / frames / 1024, 2),
+                "worker_s_per_episode": round(mean("episode_s"), 2),
+                "write_s_per_episode": round(write_per_ep, 2),
+                "cpu_s_per_episode": round(cpu_per_ep, 2),
+                "cpu_bound_100_min": round(100 / ideal_rate, 1),
+            }
+        )
+    )
     per_episode_costs(root, commits, t0, args.plot)
     if tmp is not None and not args.keep:
         shutil.rmtree(tmp)
@@ -228,8 +273,11 @@ def compare_paths(task: str, condition: str, episodes: int, steps: int | None) -
         same = all(np.array_equal(getattr(a, k), getattr(b, k)) for k in (
             "depth", "body_seg", "rgb", "point_cloud", "visibility", "action", "state"))
         identical &= same
-        print(f"seed {i}: {a.length} frames; old {1000 * cpu['old'] / frames['old']:.2f} ms/frame, "
-              f"new {1000 * cpu['new'] / frames['new']:.2f} ms/frame so far; arrays identical: {same}", flush=True)
+        print(
+            f"seed {i}: {a.length} frames; old {1000 * cpu['old'] / frames['old']:.2f} ms/frame, "
+            f"new {1000 * cpu['new'] / frames['new']:.2f} ms/frame so far; arrays identical: {same}",
+            flush=True,
+        )
     old_ms, new_ms = (1000 * cpu[k] / frames[k] for k in ("old", "new"))
     ratio = new_ms / old_ms
     projected = BASELINE_100_WALL_S * (BASELINE_WORKER_CPU_S * ratio + BASELINE_WRITER_CPU_S) / (
@@ -238,11 +286,23 @@ def compare_paths(task: str, condition: str, episodes: int, steps: int | None) -
           f"{os.getloadavg()[0]:.1f} ==")
     print(f"worker CPU per frame (record(): sim, expert, renders): old {old_ms:.2f} ms, new {new_ms:.2f} ms, "
           f"new / old = {ratio:.3f}; privileged arrays identical: {identical}")
-    print(f"PROJECTED 100 Stage episodes: {projected:.0f} s = {projected / 60:.1f} min (the idle-machine "
-          f"{BASELINE_100_WALL_S} s scaled by CPU per episode: worker {BASELINE_WORKER_CPU_S} s x {ratio:.3f} + "
-          f"writer {BASELINE_WRITER_CPU_S} s; a projection, not a measurement)")
-    print(json.dumps({"old_ms_per_frame": round(old_ms, 2), "new_ms_per_frame": round(new_ms, 2),
-                      "ratio": round(ratio, 3), "identical": bool(identical), "projected_100_s": round(projected)}))
+    print(
+        f"PROJECTED 100 Stage episodes: {projected:.0f} s = {projected / 60:.1f} min (the idle-machine "
+        f"{BASELINE_100_WALL_S} s scaled by CPU per episode: worker {BASELINE_WORKER_CPU_S} s x {ratio:.3f} "
+        "+ "
+        f"writer {BASELINE_WRITER_CPU_S} s; a projection, not a measurement)"
+    )
+    print(
+        json.dumps(
+            {
+                "old_ms_per_frame": round(old_ms, 2),
+                "new_ms_per_frame": round(new_ms, 2),
+                "ratio": round(ratio, 3),
+                "identical": bool(identical),
+                "projected_100_s": round(projected),
+            }
+        )
+    )
     for rec in paths.values():
         rec.close()
 
@@ -275,11 +335,17 @@ def per_episode_costs(root: Path, commits: list[dict], t0: float, plot: Path | N
     print(f"\nper-episode cost against episode index (groups of {k}; seconds):")
     print(f"  {'episodes':>10} {'write':>8} {'wall/episode':>13}")
     for i in range(0, len(write), k):
-        print(f"  {i:>4}-{min(i + k, len(write)) - 1:<5} {write[i:i + k].mean():8.3f} {nanmean(interval[i:i + k]):13.2f}")
+        print(
+            f"  {i:>4}-{min(i + k, len(write)) - 1:<5} {write[i : i + k].mean():8.3f} "
+            f"{nanmean(interval[i : i + k]):13.2f}"
+        )
     print(f"writer session open + finalize: first {sessions[0]:.2f} s, last {sessions[-1]:.2f} s")
-    print(f"ratio last {k} / first {k}: write {write[-k:].mean() / write[:k].mean():.2f}, "
-          f"wall per episode (after the first commit) {nanmean(interval[-k:]) / nanmean(interval[k:2 * k]):.2f} "
-          "(target <= 1.2)")
+    print(
+        f"ratio last {k} / first {k}: write {write[-k:].mean() / write[:k].mean():.2f}, "
+        f"wall per episode (after the first commit) "
+        f"{nanmean(interval[-k:]) / nanmean(interval[k : 2 * k]):.2f} "
+        "(target <= 1.2)"
+    )
     if plot is not None:
         import matplotlib
 

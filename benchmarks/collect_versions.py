@@ -6,7 +6,8 @@ in a temporary git worktree, then runs N-episode collections (the package import
 fresh folders, `--workers` processes), `--repeats` times each, alternating which goes first, and prints the
 wall time and the CPU time (the process and its workers) of every run and the ratios of the means.
 
-    python benchmarks/collect_versions.py --baseline f90bc49 [--episodes 30] [--repeats 2] [--task cube_handoff]
+    python benchmarks/collect_versions.py --baseline f90bc49 [--episodes 30] [--repeats 2] [--task
+    cube_handoff]
 """
 
 from __future__ import annotations
@@ -26,18 +27,36 @@ REPO = Path(__file__).resolve().parents[1]
 
 CODE = """import sys
 from lerobot_bavo.datasets.collect import CollectConfig, collect
-task, condition, episodes, workers, root = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
+task, condition, root = sys.argv[1], sys.argv[2], sys.argv[5]
+episodes, workers = int(sys.argv[3]), int(sys.argv[4])
 collect(CollectConfig(task=task, condition=condition, episodes=episodes, repo_id="bench/versions", root=root,
                       workers=workers, progress=False))
 """
 
 
 def run_once(tree: Path, args, root: Path) -> tuple[float, float]:
-    env = dict(os.environ, PYTHONPATH=str(tree), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", HF_HUB_OFFLINE="1")
+    env = dict(
+        os.environ, PYTHONPATH=str(tree), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", HF_HUB_OFFLINE="1"
+    )
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", CODE, args.task, args.condition, str(args.episodes), str(args.workers),
-                    str(root)], check=True, env=env, cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            CODE,
+            args.task,
+            args.condition,
+            str(args.episodes),
+            str(args.workers),
+            str(root),
+        ],
+        check=True,
+        env=env,
+        cwd=tree,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
@@ -68,7 +87,10 @@ def main() -> None:
                 root = tmp / f"ds_{len(runs[name])}_{name.split()[0]}"
                 wall, cpu = run_once(trees[name], args, root)
                 runs[name].append((wall, cpu))
-                print(f"  {name:<24} run {r}: wall {wall:6.1f} s, CPU {cpu:6.1f} s (process + workers)", flush=True)
+                print(
+                    f"  {name:<24} run {r}: wall {wall:6.1f} s, CPU {cpu:6.1f} s (process + workers)",
+                    flush=True,
+                )
                 shutil.rmtree(root, ignore_errors=True)
     finally:
         subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(baseline_tree)],

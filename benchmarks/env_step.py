@@ -64,7 +64,9 @@ def measure(task: str, n_points: int, height: int, width: int, repeats: int) -> 
 def main() -> None:
     from lerobot_bavo.envs.tasks import TASKS
 
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated task names")
     parser.add_argument("--points", type=int, default=256, help="points per cloud (default 256)")
     parser.add_argument("--height", type=int, default=240, help="image height (default 240)")

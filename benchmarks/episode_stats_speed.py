@@ -1,5 +1,6 @@
-"""Per-episode statistics: LeRobot 0.6.1's `compute_episode_stats` against `lerobot_bavo.datasets.episode_stats`
-(the exact, histogram-free version `bavo-collect`'s writer uses, issue 11), side by side in one run.
+"""Per-episode statistics: LeRobot 0.6.1's `compute_episode_stats` against
+`lerobot_bavo.datasets.episode_stats` (the exact, histogram-free version `bavo-collect`'s writer uses, issue
+11), side by side in one run.
 
 Records one real Stage episode of a task at the default settings (240 x 320, 256 points), builds its dataset
 columns as the writer hands them to LeRobot (images excluded: both use LeRobot's code for those), then times
@@ -44,10 +45,17 @@ def main() -> None:
         record = recorder.record(args.seed)
     finally:
         recorder.close()
-    targets = teacher_targets(record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX)
-    cols, features = writer_stats_inputs({k: v for k, v in episode_frames(record, targets).items() if k != S.OBS_IMAGE})
+    targets = teacher_targets(
+        record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX
+    )
+    cols, features = writer_stats_inputs(
+        {k: v for k, v in episode_frames(record, targets).items() if k != S.OBS_IMAGE}
+    )
     dims = sum(int(v.reshape(len(v), -1).shape[1]) for v in cols.values())
-    print(f"{args.task} seed {args.seed}: {record.length} frames, {len(cols)} numeric features, {dims} dimensions")
+    print(
+        f"{args.task} seed {args.seed}: {record.length} frames, {len(cols)} numeric features, {dims} "
+        "dimensions"
+    )
 
     times = {"lerobot": [], "bavo": []}
     results = {}
@@ -83,11 +91,15 @@ def main() -> None:
             results[name] = frame_stats(cls)
             times[name].append(time.process_time() - c0)
     a, b = results["lerobot"], results["bavo"]
-    identical = list(a) == list(b) and all(a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes() for k in a)
+    identical = list(a) == list(b) and all(
+        a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes() for k in a
+    )
     best = {k: min(v) for k, v in times.items()}
-    print(f"streaming image statistics, {record.length} frames {record.rgb.shape[1]} x {record.rgb.shape[2]} "
-          f"(best of {args.repeats}): LeRobot {best['lerobot'] * 1000:.0f} ms, lerobot_bavo "
-          f"{best['bavo'] * 1000:.0f} ms, ratio {best['lerobot'] / best['bavo']:.1f}x; identical: {identical}")
+    print(
+        f"streaming image statistics, {record.length} frames {record.rgb.shape[1]} x {record.rgb.shape[2]} "
+        f"(best of {args.repeats}): LeRobot {best['lerobot'] * 1000:.0f} ms, lerobot_bavo "
+        f"{best['bavo'] * 1000:.0f} ms, ratio {best['lerobot'] / best['bavo']:.1f}x; identical: {identical}"
+    )
 
 
 if __name__ == "__main__":

@@ -83,11 +83,17 @@ def replay(env, actions, seed: int) -> tuple[float, dict]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--task", default="cube_handoff")
-    parser.add_argument("--steps", type=int, default=500, help="episode length in control steps (default 500)")
+    parser.add_argument(
+        "--steps", type=int, default=500, help="episode length in control steps (default 500)"
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--repeats", type=int, default=3, help="interleaved repetitions; best kept (default 3)")
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="interleaved repetitions; best kept (default 3)"
+    )
     parser.add_argument("--height", type=int, default=240, help="observation image height (env default 240)")
     parser.add_argument("--width", type=int, default=320, help="observation image width (env default 320)")
     parser.add_argument("--core", type=int, default=None, help="CPU core to pin to (default: lowest allowed)")
@@ -108,8 +114,12 @@ def main(argv: list[str] | None = None) -> None:
     common = dict( image_height=size[0], image_width=size[1], episode_length=args.steps,
                   render_mode=None)
     envs = {
-        "random + CVG": BavoEnv(task=no_success_task(args.task), condition="random", compute_cvg=True, **common),
-        "random, no CVG": BavoEnv(task=no_success_task(args.task), condition="random", compute_cvg=False, **common),
+        "random + CVG": BavoEnv(
+            task=no_success_task(args.task), condition="random", compute_cvg=True, **common
+        ),
+        "random, no CVG": BavoEnv(
+            task=no_success_task(args.task), condition="random", compute_cvg=False, **common
+        ),
         "clean": BavoEnv(task=no_success_task(args.task), condition="clean", **common),
     }
     for env in envs.values():  # warm up: GL contexts and lazy renderers
@@ -130,8 +140,11 @@ def main(argv: list[str] | None = None) -> None:
     print(f"final states identical across the three replays: {same}")
     cvg = infos["random + CVG"].get("cvg") or {}
     frozen_steps = sum(e["num_samples"] for e in cvg.get("events", []))
-    print(f"episode CVG (random + CVG): {cvg.get('episode_cvg')}, retained events "
-          f"{cvg.get('num_retained')}/{cvg.get('num_events')}, steps inside recovery windows {frozen_steps}/{n + 1}")
+    print(
+        f"episode CVG (random + CVG): {cvg.get('episode_cvg')}, retained events "
+        f"{cvg.get('num_retained')}/{cvg.get('num_events')}, steps inside recovery windows "
+        f"{frozen_steps}/{n + 1}"
+    )
     for name in envs:
         print(f"{name:>15}: {best[name]:7.2f} s  ({1000 * best[name] / n:6.1f} ms/step)")
     ratio = best["random + CVG"] / best["random, no CVG"]

@@ -40,7 +40,9 @@ def run_episode(args: tuple[str, str, int]) -> dict:
 def main() -> None:
     from lerobot_bavo.envs.tasks import TASKS
 
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated task names")
     parser.add_argument("--condition", default="clean", help="visibility condition (default: clean)")
     parser.add_argument("--episodes", type=int, default=50, help="episodes per task")
@@ -50,12 +52,17 @@ def main() -> None:
 
     from tqdm import tqdm
 
-    jobs = [(t, args.condition, args.start_seed + i) for t in args.tasks.split(",") for i in range(args.episodes)]
+    jobs = [
+        (t, args.condition, args.start_seed + i) for t in args.tasks.split(",") for i in range(args.episodes)
+    ]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         results = list(tqdm(pool.map(run_episode, jobs), total=len(jobs), desc="episodes"))
     wall = time.perf_counter() - t0
-    print(f"\n{'task':<18}{'SR %':>7}{'TPS %':>8}{'steps (succ.) mean/min/max':>30}  failures (seed:progress@phase)")
+    print(
+        f"\n{'task':<18}{'SR %':>7}{'TPS %':>8}{'steps (succ.) mean/min/max':>30}  failures "
+        "(seed:progress@phase)"
+    )
     for task in args.tasks.split(","):
         rs = [r for r in results if r["task"] == task]
         succ = [r for r in rs if r["success"]]

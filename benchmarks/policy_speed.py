@@ -40,7 +40,9 @@ def parse_args() -> argparse.Namespace:
     p.add_argument("--train-threads", type=int, default=2, help="torch threads for the training steps")
     p.add_argument("--train-steps", type=int, default=6, help="timed training steps per policy")
     p.add_argument("--warmup-steps", type=int, default=2, help="untimed training steps per policy first")
-    p.add_argument("--infer-iters", type=int, default=30, help="timed action chunks per policy and step count")
+    p.add_argument(
+        "--infer-iters", type=int, default=30, help="timed action chunks per policy and step count"
+    )
     p.add_argument("--num-points", type=int, default=256, help="points per observation step (N = N_q)")
     p.add_argument("--teacher-dim", type=int, default=64, help="teacher feature width d_T of z0/zf")
     p.add_argument("--dit-hidden-dim", type=int, default=None, help="override the preset's DiT-X width")
@@ -119,7 +121,8 @@ def main() -> None:
         print(f"{name:8s} params (online model): {n / 1e6:.2f} M")
     c = mf_cfg
     print(
-        f"preset={c.preset}: DiT-X {c.dit_hidden_dim} wide x {c.dit_num_layers} layers x {c.dit_num_heads} heads, "
+        f"preset={c.preset}: DiT-X {c.dit_hidden_dim} wide x {c.dit_num_layers} layers x {c.dit_num_heads} "
+        "heads, "
         f"point encoder 6->{'->'.join(map(str, c.point_encoder_hidden_dims))}->{c.point_feature_dim}, "
         f"WQF {af_cfg.wqf_hidden_dim} wide x {af_cfg.wqf_num_blocks} blocks x {af_cfg.wqf_num_heads} heads "
         f"(FFN x{af_cfg.wqf_ffn_ratio}), "

@@ -1,13 +1,14 @@
 """Overhead of `bavo-eval --executor ray` against `--executor local` on the same cores, same run (issue 15).
 
-Runs the same evaluation (default: the scripted expert, Cube Handoff, clean, 10 episodes, no videos, 2 workers)
-as a whole `bavo-eval` command, once per executor and repeat, alternating which goes first, each into a fresh
-folder, and prints the wall time of every run, the ratio ray / local of the best runs (target: at most 1.15x),
-and where the difference goes: the episodes' own time (the records' wall_s, summed, divided by the workers) is
-the same on both, the rest is start-up and shut-down (for Ray: importing it, starting a private local Ray with
---workers CPUs, fresh worker processes importing MuJoCo and the package, stopping Ray).
+Runs the same evaluation (default: the scripted expert, Cube Handoff, clean, 10 episodes, no videos, 2
+workers) as a whole `bavo-eval` command, once per executor and repeat, alternating which goes first, each into
+a fresh folder, and prints the wall time of every run, the ratio ray / local of the best runs (target: at most
+1.15x), and where the difference goes: the episodes' own time (the records' wall_s, summed, divided by the
+workers) is the same on both, the rest is start-up and shut-down (for Ray: importing it, starting a private
+local Ray with --workers CPUs, fresh worker processes importing MuJoCo and the package, stopping Ray).
 
-    python benchmarks/ray_overhead.py [--episodes 10] [--workers 2] [--repeats 1] [--task cube_handoff] [--cluster]
+    python benchmarks/ray_overhead.py [--episodes 10] [--workers 2] [--repeats 1] [--task cube_handoff]
+    [--cluster]
 
 `--cluster`: the Ray runs use a standing local Ray (`ray start --head` once, before the runs, as on a cluster,
 stopped after them) through `--ray-address`, instead of each run starting and stopping a private one; what
@@ -100,15 +101,24 @@ def measure(args) -> None:
                 wall, eps = run(executor, args, Path(tmp) / f"{executor}{i}")
                 walls[executor].append(wall)
                 episode_s[executor].append(eps)
-                print(f"{executor:5s} run {i}: {wall:6.1f} s wall, episodes {eps:6.1f} s summed "
-                      f"({eps / args.workers:5.1f} s per worker), start-up + shut-down ~{wall - eps / args.workers:5.1f} s",
-                      flush=True)
+                print(
+                    f"{executor:5s} run {i}: {wall:6.1f} s wall, episodes {eps:6.1f} s summed "
+                    f"({eps / args.workers:5.1f} s per worker), start-up + shut-down "
+                    f"~{wall - eps / args.workers:5.1f} s",
+                    flush=True,
+                )
     best = {k: min(v) for k, v in walls.items()}
     ray_kind = "a standing local Ray (--ray-address)" if args.cluster else "a private Ray per run"
-    print(f"\n{args.episodes} episodes of {args.policy} on {args.task}/{args.condition}, {args.workers} workers, "
-          f"{os.cpu_count()} cores, Ray runs on {ray_kind}; best of {args.repeats}:")
-    print(f"  local {best['local']:.1f} s, ray {best['ray']:.1f} s: ratio ray/local = {best['ray'] / best['local']:.2f}x "
-          "(target <= 1.15x)")
+    print(
+        f"\n{args.episodes} episodes of {args.policy} on {args.task}/{args.condition}, {args.workers} "
+        "workers, "
+        f"{os.cpu_count()} cores, Ray runs on {ray_kind}; best of {args.repeats}:"
+    )
+    print(
+        f"  local {best['local']:.1f} s, ray {best['ray']:.1f} s: ratio ray/local = "
+        f"{best['ray'] / best['local']:.2f}x "
+        "(target <= 1.15x)"
+    )
 
 
 if __name__ == "__main__":

@@ -8,18 +8,18 @@ loading path of this package (`bavo-eval`, `bavo-demo`, `LeRobotPolicyAgent`) ru
 
 Trusted: processor steps registered in LeRobot's `ProcessorStepRegistry` (LeRobot's own and this
 package's, registered on import) except those that load models or tokenizers from the Hub
-(`HUB_LOADING_STEPS`) and those whose config asks for Hub code (`trust_remote_code`), and `"class"` paths inside
-`lerobot.processor.` or `lerobot_bavo.` that resolve to a `ProcessorStep`; policy types whose loading
+(`HUB_LOADING_STEPS`) and those whose config asks for Hub code (`trust_remote_code`), and `"class"` paths
+inside `lerobot.processor.` or `lerobot_bavo.` that resolve to a `ProcessorStep`; policy types whose loading
 runs no code from outside LeRobot, torch and torchvision (`AUDITED_POLICY_TYPES`; LeRobot's pi0_fast,
-groot, gaussian_actor and wall_x, by contrast, load Hub models with `trust_remote_code=True` when built). Everything else is refused
-*before anything is imported*, unless the caller opts in with `trust_remote_code=True`
-(`--trust-remote-code` on the CLIs).
+groot, gaussian_actor and wall_x, by contrast, load Hub models with `trust_remote_code=True` when built).
+Everything else is refused *before anything is imported*, unless the caller opts in with
+`trust_remote_code=True` (`--trust-remote-code` on the CLIs).
 
-Sizes: a checkpoint's JSON files are read only up to 1 MiB and as UTF-8, the sizes its config asks for (sampler
-steps, horizon, widths, depths, point count, image size) are bounded (`lerobot_bavo.limits`, checked by our policy
-configs and by `env_settings`), and a truncated `model.safetensors` is named (`check_tensor_files`): before, such
-a checkpoint could hang `bavo-eval` past 6 GB or end it with a raw traceback. Messages show values from the files
-through `limits.short_repr`.
+Sizes: a checkpoint's JSON files are read only up to 1 MiB and as UTF-8, the sizes its config asks for
+(sampler steps, horizon, widths, depths, point count, image size) are bounded (`lerobot_bavo.limits`, checked
+by our policy configs and by `env_settings`), and a truncated `model.safetensors` is named
+(`check_tensor_files`): before, such a checkpoint could hang `bavo-eval` past 6 GB or end it with a raw
+traceback. Messages show values from the files through `limits.short_repr`.
 
 Fit: a checkpoint's `config.json` records the point count, image size and object-pose input it was
 trained on; the point-cloud frame (base or camera) is recorded only by the `bavo-collect` dataset it was
@@ -47,8 +47,8 @@ AUDITED_POLICY_TYPES = ("act", "diffusion", "vqbet", "tdmpc", "maniflow", "afar"
 # Registered LeRobot 0.6.1 steps that load a model, tokenizer or processor named in their config from the Hub
 # (`from_pretrained`; the action tokenizer with trust_remote_code=True by default, the reward classifier a Hub
 # encoder with trust_remote_code=True, the others tokenizers or weights): a checkpoint could point them at any
-# repository. None of them is used by the audited policy types. tests/test_faults.py checks that the list covers every registered step
-# whose source calls `from_pretrained` or `hf_hub_download`.
+# repository. None of them is used by the audited policy types. tests/test_faults.py checks that the list
+# covers every registered step whose source calls `from_pretrained` or `hf_hub_download`.
 HUB_LOADING_STEPS = frozenset({
     "action_tokenizer_processor", "tokenizer_processor", "reward_classifier_processor", "eo1_qwen_processor",
     "groot_action_unpack_unnormalize_v2", "groot_n1_7_action_decode_v1", "molmoact2_pack_inputs",
@@ -64,8 +64,8 @@ class CheckpointMismatchError(ValueError):
     """A checkpoint does not fit the environment it is asked to run in, or its weights are incomplete."""
 
 
-# The largest JSON file of a checkpoint read (config.json, processor files, bavo_inputs.json, train_config.json):
-# real ones are a few KB; reading a bigger one whole would only cost memory.
+# The largest JSON file of a checkpoint read (config.json, processor files, bavo_inputs.json,
+# train_config.json): real ones are a few KB; reading a bigger one whole would only cost memory.
 MAX_JSON_BYTES = 1 << 20
 
 
@@ -75,7 +75,9 @@ def _read_text(path: Path) -> str:
     with open(path, "rb") as fh:
         data = fh.read(MAX_JSON_BYTES + 1)
     if len(data) > MAX_JSON_BYTES:
-        raise CheckpointMismatchError(f"{path} is over {MAX_JSON_BYTES} bytes; a checkpoint's JSON files are a few KB")
+        raise CheckpointMismatchError(
+            f"{path} is over {MAX_JSON_BYTES} bytes; a checkpoint's JSON files are a few KB"
+        )
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
@@ -138,9 +140,11 @@ def policy_config_problems(path: str | Path) -> list[str]:
                 f"({', '.join(known)})"]
     problems = []
     if kind not in AUDITED_POLICY_TYPES:
-        problems.append(f"{file}: policy type {short_repr(kind)} is not audited: LeRobot types outside "
-                        f"{', '.join(AUDITED_POLICY_TYPES)} download pretrained components when built, some with "
-                        "trust_remote_code=True")
+        problems.append(
+            f"{file}: policy type {short_repr(kind)} is not audited: LeRobot types outside "
+            f"{', '.join(AUDITED_POLICY_TYPES)} download pretrained components when built, some with "
+            "trust_remote_code=True"
+        )
     if cfg.get("use_peft"):
         problems.append(f"{file}: use_peft is set (a PEFT adapter loads the base policy named in its adapter "
                         "config, unchecked)")
@@ -171,9 +175,13 @@ def processor_step_problems(path: str | Path) -> list[str]:
                 problems.append(f"{file}: step {i} is not an object")
                 continue
             state_file = step.get("state_file")
-            if state_file is not None and (not isinstance(state_file, str) or Path(state_file).name != state_file):
-                problems.append(f"{file}: step {i} state_file {short_repr(state_file)} is not a file name inside "
-                                "the checkpoint")
+            if state_file is not None and (
+                not isinstance(state_file, str) or Path(state_file).name != state_file
+            ):
+                problems.append(
+                    f"{file}: step {i} state_file {short_repr(state_file)} is not a file name inside "
+                    "the checkpoint"
+                )
             if "registry_name" in step:
                 name = short_repr(step["registry_name"])
                 if step["registry_name"] not in registered:
@@ -216,9 +224,12 @@ def check_processor_steps(path: str | Path, trust_remote_code: bool = False) -> 
     problems = policy_config_problems(path) + processor_step_problems(path)
     if problems:
         raise UntrustedCheckpointError(
-            f"refusing to load the checkpoint at {path}: loading it would import or fetch code that is neither "
-            "LeRobot's nor lerobot_bavo's audited code:\n  " + "\n  ".join(problems)
-            + "\nIf you trust where this checkpoint comes from, pass --trust-remote-code (trust_remote_code=True)."
+            f"refusing to load the checkpoint at {path}: loading it would import or fetch code that is "
+            "neither "
+            "LeRobot's nor lerobot_bavo's audited code:\n  "
+            + "\n  ".join(problems)
+            + "\nIf you trust where this checkpoint comes from, pass --trust-remote-code "
+              "(trust_remote_code=True)."
         )
 
 
@@ -229,8 +240,15 @@ def checkpoint_digest(path: str | Path) -> str:
     episodes in one results file."""
     path = Path(path)
     h = hashlib.sha256()
-    names = sorted(f.name for f in path.iterdir() if f.is_file() and (
-        f.name in ("config.json", "model.safetensors") or f.name.startswith(("policy_preprocessor", "policy_postprocessor"))))
+    names = sorted(
+        f.name
+        for f in path.iterdir()
+        if f.is_file()
+        and (
+            f.name in ("config.json", "model.safetensors")
+            or f.name.startswith(("policy_preprocessor", "policy_postprocessor"))
+        )
+    )
     for name in names:
         h.update(name.encode() + b"\0")
         with open(path / name, "rb") as fh:
@@ -261,8 +279,9 @@ def env_settings(path: str | Path) -> dict:
     if OBS_POINT_CLOUD in inputs:
         shape = shape_of(OBS_POINT_CLOUD)
         if math.prod(shape) % POINT_CHANNELS:
-            raise CheckpointMismatchError(f"{file}: observation.point_cloud shape {short_repr(shape)} is not N x 6 "
-                                          "(xyz rgb)")
+            raise CheckpointMismatchError(
+                f"{file}: observation.point_cloud shape {short_repr(shape)} is not N x 6 (xyz rgb)"
+            )
         out["n_points"] = math.prod(shape) // POINT_CHANNELS
         frame = recorded_point_frame(path)
         if frame is not None:
@@ -270,13 +289,18 @@ def env_settings(path: str | Path) -> dict:
     if OBS_IMAGE in inputs:
         shape = shape_of(OBS_IMAGE)
         if len(shape) != 3 or 3 not in (shape[0], shape[-1]):
-            raise CheckpointMismatchError(f"{file}: observation.images.active shape {short_repr(shape)} is not "
-                                          "CHW / HWC RGB")
-        out["image_height"], out["image_width"] = (shape[1], shape[2]) if shape[0] == 3 else (shape[0], shape[1])
+            raise CheckpointMismatchError(
+                f"{file}: observation.images.active shape {short_repr(shape)} is not CHW / HWC RGB"
+            )
+        out["image_height"], out["image_width"] = (
+            (shape[1], shape[2]) if shape[0] == 3 else (shape[0], shape[1])
+        )
     out["environment_state"] = OBS_ENV_STATE in inputs
     problems = bound_problems(out)
     if problems:
-        raise CheckpointMismatchError(f"{file} asks the env for observations out of bounds: " + "; ".join(problems))
+        raise CheckpointMismatchError(
+            f"{file} asks the env for observations out of bounds: " + "; ".join(problems)
+        )
     return out
 
 
@@ -312,7 +336,9 @@ def recorded_point_frame(path: str | Path) -> str | None:
             raise CheckpointMismatchError(f"{own} is not a valid inputs record ({exc!r}); expected "
                                           '{"point_frame": "base"} or {"point_frame": "camera"}') from exc
         if frame not in POINT_FRAMES:
-            raise CheckpointMismatchError(f"{own}: point_frame must be 'base' or 'camera', got {short_repr(frame)}")
+            raise CheckpointMismatchError(
+                f"{own}: point_frame must be 'base' or 'camera', got {short_repr(frame)}"
+            )
         return frame
     file = Path(path) / "train_config.json"
     if not file.is_file():
@@ -351,7 +377,9 @@ def recorded_point_frame(path: str | Path) -> str | None:
 
 def mismatches(recorded: dict, actual: dict) -> list[str]:
     """'key: checkpoint X, env Y' for every recorded setting the env does not have."""
-    return [f"{k}: checkpoint {v!r}, env {actual.get(k)!r}" for k, v in recorded.items() if actual.get(k) != v]
+    return [
+        f"{k}: checkpoint {v!r}, env {actual.get(k)!r}" for k, v in recorded.items() if actual.get(k) != v
+    ]
 
 
 def load_policy_config(path: str | Path):
@@ -373,14 +401,17 @@ def load_policy_config(path: str | Path):
         while cause.__cause__ is not None or cause.__context__ is not None:
             cause = cause.__cause__ or cause.__context__
         detail = f"{e}" if cause is e else f"{e} (because: {cause})"
-        raise CheckpointMismatchError(f"{path / 'config.json'} cannot be read as a LeRobot policy config "
-                                      f"(is its 'type' a registered policy, are its values valid?): {detail}") from e
+        raise CheckpointMismatchError(
+            f"{path / 'config.json'} cannot be read as a LeRobot policy config "
+            f"(is its 'type' a registered policy, are its values valid?): {detail}"
+        ) from e
 
 
 def check_tensor_files(path: str | Path) -> None:
-    """Raise CheckpointMismatchError naming `model.safetensors` (or a processor's state file) when it is missing,
-    truncated or not a safetensors file. Why: LeRobot's loader fails on those with a bare `SafetensorError`
-    traceback ("incomplete metadata, file not fully covered" for a cut-off download). Reads headers only."""
+    """Raise CheckpointMismatchError naming `model.safetensors` (or a processor's state file) when it is
+    missing, truncated or not a safetensors file. Why: LeRobot's loader fails on those with a bare
+    `SafetensorError` traceback ("incomplete metadata, file not fully covered" for a cut-off download). Reads
+    headers only."""
     from safetensors import safe_open
 
     path = Path(path)
@@ -392,8 +423,9 @@ def check_tensor_files(path: str | Path) -> None:
             with safe_open(str(file), framework="pt") as f:
                 list(f.keys())
         except Exception as e:  # SafetensorError, OSError
-            raise CheckpointMismatchError(f"{file} is truncated or not a safetensors file ({e}); copy or download "
-                                          "the checkpoint again") from None
+            raise CheckpointMismatchError(
+                f"{file} is truncated or not a safetensors file ({e}); copy or download the checkpoint again"
+            ) from None
 
 
 def check_weights_complete(policy, path: str | Path) -> None:

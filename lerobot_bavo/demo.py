@@ -67,8 +67,12 @@ def run_demo(task: str, condition: str, seeds: list[int], output_dir: Path, agen
             path = output_dir / f"{name}_{task}_{condition}_seed{seed}.mp4" if video else None
             t0 = time.perf_counter()
             # one bar per episode, in control steps, so the progress moves from the first second
-            with tqdm(total=env.max_episode_steps, unit="step", leave=False,
-                      desc=f"{name} on {task}/{condition}: episode {i + 1}/{len(seeds)} (seed {seed})") as bar:
+            with tqdm(
+                total=env.max_episode_steps,
+                unit="step",
+                leave=False,
+                desc=f"{name} on {task}/{condition}: episode {i + 1}/{len(seeds)} (seed {seed})",
+            ) as bar:
                 record = run_episode(env, agent, seed, video_path=path, video_every=video_every,
                                      on_step=lambda info, bar=bar: bar.update(1))
             record["wall_s"] = time.perf_counter() - t0
@@ -100,9 +104,15 @@ def main(argv: list[str] | None = None) -> None:
                              "(default: afar,expert)")
     parser.add_argument("--policy", type=Path, default=SHIPPED_CHECKPOINT,
                         help="checkpoint directory of the 'afar' agent (default: the shipped %(default)s)")
-    parser.add_argument("--episodes", type=int, default=3, help="number of seeded episodes per agent (default: 3)")
-    parser.add_argument("--seed", type=int, default=1000,
-                        help="first seed; episodes use seed, seed+1, ... (default 1000: not a demonstration seed)")
+    parser.add_argument(
+        "--episodes", type=int, default=3, help="number of seeded episodes per agent (default: 3)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=1000,
+        help="first seed; episodes use seed, seed+1, ... (default 1000: not a demonstration seed)",
+    )
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"), help="where videos go")
     parser.add_argument("--no-video", action="store_true", help="skip writing mp4 files")
     parser.add_argument("--trust-remote-code", action="store_true",

@@ -45,9 +45,9 @@ TEACHER_ZF = f"{TEACHER_PREFIX}.zf"
 TEACHER_VISIBLE = f"{TEACHER_PREFIX}.visible"
 TEACHER_VALID = f"{TEACHER_PREFIX}.valid"
 TEACHER_KEYS = (TEACHER_Z0, TEACHER_ZF, TEACHER_VISIBLE, TEACHER_VALID)
-# (N,) float32, 1 where the cloud point lies on the benchmark occluder: a label derived from the occluder's pose
-# when a `points` training view is made, for the occluder-dropout training recipe (`policies/augment.py`).
-# Not part of a collected dataset.
+# (N,) float32, 1 where the cloud point lies on the benchmark occluder: a label derived from the occluder's
+# pose when a `points` training view is made, for the occluder-dropout training recipe
+# (`policies/augment.py`). Not part of a collected dataset.
 TEACHER_OCCLUDER = f"{TEACHER_PREFIX}.occluder"
 
 # Dataset annotations (never reach a policy).
@@ -59,7 +59,8 @@ ANN_ACTIVE = f"{ANNOTATION_PREFIX}.occlusion_active"
 ANN_TARGET = f"{ANNOTATION_PREFIX}.occlusion_target"
 ANN_VISIBILITY = f"{ANNOTATION_PREFIX}.visibility"
 ANN_SEED = f"{ANNOTATION_PREFIX}.episode_seed"
-# Who demonstrated an episode: the value is the index in SOURCES (bavo-collect's expert 0, bavo-teleop's human 1).
+# Who demonstrated an episode: the value is the index in SOURCES (bavo-collect's expert 0, bavo-teleop's human
+# 1).
 ANN_SOURCE = f"{ANNOTATION_PREFIX}.source"
 SOURCES = ("expert", "human")
 ANN_OCCLUDER_POSE = f"{ANNOTATION_PREFIX}.occluder_pose"  # occluder centre + wxyz quaternion (bavo-view)
@@ -97,11 +98,15 @@ class ObservationSettings:
 
     def __post_init__(self):
         if self.image_height < 16 or self.image_width < 16:
-            raise ValueError(f"image size must be >= 16 x 16 pixels, got {self.image_height} x {self.image_width}")
+            raise ValueError(
+                f"image size must be >= 16 x 16 pixels, got {self.image_height} x {self.image_width}"
+            )
         if self.n_points < 2:
             raise ValueError(f"n_points must be >= 2 (relations need pairs), got {self.n_points}")
         if self.point_frame not in POINT_FRAMES:
-            raise ValueError(f"unknown point_frame {self.point_frame!r}; expected one of {', '.join(POINT_FRAMES)}")
+            raise ValueError(
+                f"unknown point_frame {self.point_frame!r}; expected one of {', '.join(POINT_FRAMES)}"
+            )
         problems = bound_problems({"image_height": self.image_height, "image_width": self.image_width,
                                    "n_points": self.n_points})  # upper bounds: `lerobot_bavo.limits`
         if problems:
@@ -119,7 +124,9 @@ def unflatten_points(x, n_points: int, channels: int):
     if len(shape) >= 2 and shape[-2:] == (n_points, channels):
         return x
     if not shape or shape[-1] != n_points * channels:
-        raise ValueError(f"expected (..., {n_points * channels}) or (..., {n_points}, {channels}), got {shape}")
+        raise ValueError(
+            f"expected (..., {n_points * channels}) or (..., {n_points}, {channels}), got {shape}"
+        )
     return x.reshape(*shape[:-1], n_points, channels)
 
 
@@ -129,10 +136,41 @@ def flatten_points(x):
 
 
 __all__ = [
-    "ACTION", "ANNOTATION_KEYS", "ANNOTATION_PREFIX", "ANN_ACTIVE", "ANN_EVENT", "ANN_EVENT_START", "ANN_PROGRESS",
-    "ANN_SEED", "ANN_SOURCE", "ANN_TARGET", "ANN_VISIBILITY", "ENV_ENV_STATE_KEY", "ENV_IMAGE_KEY",
-    "ENV_POINT_CLOUD_KEY", "ENV_POINT_PIXELS_KEY", "ENV_STATE_KEY", "OBS_CAMERA_POSE", "OBS_ENV_STATE", "OBS_IMAGE",
-    "OBS_POINT_CLOUD", "OBS_POINT_PIXELS", "OBS_STATE", "ObservationSettings", "PIXEL_CHANNELS", "POINT_CHANNELS",
-    "POINT_FRAMES", "POSE_CHANNELS", "SOURCES", "TEACHER_CHANNELS", "TEACHER_KEYS", "TEACHER_PREFIX", "TEACHER_VALID",
-    "TEACHER_VISIBLE", "TEACHER_Z0", "TEACHER_ZF", "flatten_points", "unflatten_points",
+    "ACTION",
+    "ANNOTATION_KEYS",
+    "ANNOTATION_PREFIX",
+    "ANN_ACTIVE",
+    "ANN_EVENT",
+    "ANN_EVENT_START",
+    "ANN_PROGRESS",
+    "ANN_SEED",
+    "ANN_SOURCE",
+    "ANN_TARGET",
+    "ANN_VISIBILITY",
+    "ENV_ENV_STATE_KEY",
+    "ENV_IMAGE_KEY",
+    "ENV_POINT_CLOUD_KEY",
+    "ENV_POINT_PIXELS_KEY",
+    "ENV_STATE_KEY",
+    "OBS_CAMERA_POSE",
+    "OBS_ENV_STATE",
+    "OBS_IMAGE",
+    "OBS_POINT_CLOUD",
+    "OBS_POINT_PIXELS",
+    "OBS_STATE",
+    "ObservationSettings",
+    "PIXEL_CHANNELS",
+    "POINT_CHANNELS",
+    "POINT_FRAMES",
+    "POSE_CHANNELS",
+    "SOURCES",
+    "TEACHER_CHANNELS",
+    "TEACHER_KEYS",
+    "TEACHER_PREFIX",
+    "TEACHER_VALID",
+    "TEACHER_VISIBLE",
+    "TEACHER_Z0",
+    "TEACHER_ZF",
+    "flatten_points",
+    "unflatten_points",
 ]

@@ -44,7 +44,8 @@ CVG_HORIZON = 60  # H, control steps (2.4 s at 25 Hz), Appendix A
 NUM_MILESTONES = 5  # M1..M5 per task; M5 is success (reward = depth / NUM_MILESTONES)
 
 # The metrics of a (task, condition) cell, in the order tables show them: key in results.json -> column label.
-# A new metric is one entry here and one line in `cell_metrics`; `bavo-eval`, the grid and the scripts read both.
+# A new metric is one entry here and one line in `cell_metrics`; `bavo-eval`, the grid and the scripts read
+# both.
 CELL_METRICS = {"sr": "SR (%)", "tps": "TPS (%)", "cvg": "CVG (pp)", "joint": "Joint"}
 
 

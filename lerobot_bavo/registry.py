@@ -33,7 +33,9 @@ class Registry(dict):
             raise ValueError(f"{cls.__qualname__} sets no {self.key!r}: a {self.kind} needs a non-empty name")
         old = self.get(name)
         if old is not None and (old.__module__, old.__qualname__) != (cls.__module__, cls.__qualname__):
-            raise ValueError(f"{self.kind} {name!r} is already registered by {old.__module__}.{old.__qualname__}")
+            raise ValueError(
+                f"{self.kind} {name!r} is already registered by {old.__module__}.{old.__qualname__}"
+            )
         self[name] = cls
         return cls
 
@@ -53,7 +55,10 @@ class Registry(dict):
             if info.name.startswith("_"):
                 continue
             module = importlib.import_module(f"{package}.{info.name}")
-            found += [c for _, c in inspect.getmembers(module, inspect.isclass)
-                      if c.__module__ == module.__name__ and issubclass(c, base) and not inspect.isabstract(c)]
+            found += [
+                c
+                for _, c in inspect.getmembers(module, inspect.isclass)
+                if c.__module__ == module.__name__ and issubclass(c, base) and not inspect.isabstract(c)
+            ]
         for cls in sorted(found, key=order) if order is not None else found:
             self.register(cls)

@@ -45,8 +45,11 @@ def main() -> None:
     p.add_argument("--condition", default="stage")
     p.add_argument("--task", default="cube_handoff")
     p.add_argument("--output", type=Path, required=True)
-    p.add_argument("--extrapolate", action="store_true",
-                   help="draw and print a log-linear extrapolation to the paper's 6.4 M samples (labelled as such)")
+    p.add_argument(
+        "--extrapolate",
+        action="store_true",
+        help="draw and print a log-linear extrapolation to the paper's 6.4 M samples (labelled as such)",
+    )
     args = p.parse_args()
     # series[label][samples] = list of (seed, sr, tps, n_episodes, step, batch)
     series: dict[str, dict[int, list[tuple]]] = defaultdict(lambda: defaultdict(list))
@@ -55,9 +58,14 @@ def main() -> None:
         label, _, seed = label.partition("@")
         cell = json.loads(Path(path).read_text())["cells"][f"{args.task}/{args.condition}"]
         samples = int(step) * int(batch)
-        series[label][samples].append((seed or "-", cell["sr"], cell["tps"], cell["n_episodes"], int(step), int(batch)))
+        series[label][samples].append(
+            (seed or "-", cell["sr"], cell["tps"], cell["n_episodes"], int(step), int(batch))
+        )
     c = args.condition
-    print(f"| policy | samples | steps x batch | training seeds | {c} SR (%) | {c} TPS (%) | episodes per seed |")
+    print(
+        f"| policy | samples | steps x batch | training seeds | {c} SR (%) | {c} TPS (%) | episodes per seed "
+        "|"
+    )
     print("|---|---|---|---|---|---|---|")
     means: dict[str, list[tuple[int, float, float]]] = {}
     for label, budgets in series.items():
@@ -68,17 +76,25 @@ def main() -> None:
             tps, tps_sd = mean_std([r[2] for r in runs])
             means[label].append((samples, sr, tps))
             pm = (lambda m, s: f"{m:.1f} ± {s:.1f}") if len(runs) > 1 else (lambda m, s: f"{m:.1f}")
-            print(f"| {label} | {samples:,} | {runs[0][4]} x {runs[0][5]} | {', '.join(r[0] for r in runs)} | "
-                  f"{pm(sr, sr_sd)} | {pm(tps, tps_sd)} | {'/'.join(str(r[3]) for r in runs)} |")
+            print(
+                f"| {label} | {samples:,} | {runs[0][4]} x {runs[0][5]} | {', '.join(r[0] for r in runs)} | "
+                f"{pm(sr, sr_sd)} | {pm(tps, tps_sd)} | {'/'.join(str(r[3]) for r in runs)} |"
+            )
     fits = {}
     if args.extrapolate:
-        print(f"\n| policy | extrapolation to {PAPER_SAMPLES:,} samples (log-linear fit, NOT measured) | {c} SR (%) | "
-              f"{c} TPS (%) |\n|---|---|---|---|")
+        print(
+            f"\n| policy | extrapolation to {PAPER_SAMPLES:,} samples (log-linear fit, NOT measured) | {c} "
+            "SR (%) | "
+            f"{c} TPS (%) |\n|---|---|---|---|"
+        )
         for label, pts in means.items():
             xs = [q[0] for q in pts]
             fits[label] = [log_linear_fit(xs, [q[i] for q in pts]) for i in (1, 2)]
             guess = [min(100.0, max(0.0, a + b * math.log10(PAPER_SAMPLES))) for a, b in fits[label]]
-            print(f"| {label} | fit over {len(xs)} budgets ({xs[0]:,} to {xs[-1]:,}) | {guess[0]:.0f} | {guess[1]:.0f} |")
+            print(
+                f"| {label} | fit over {len(xs)} budgets ({xs[0]:,} to {xs[-1]:,}) | {guess[0]:.0f} | "
+                f"{guess[1]:.0f} |"
+            )
 
     import matplotlib
 
@@ -96,8 +112,14 @@ def main() -> None:
             if label in fits:
                 a, b = fits[label][idx - 1]
                 xs = [pts[-1][0], PAPER_SAMPLES]
-                ax.plot(xs, [min(100.0, max(0.0, a + b * math.log10(x))) for x in xs], "--", color=color, alpha=0.6,
-                        label=f"{label}: extrapolation (not measured)")
+                ax.plot(
+                    xs,
+                    [min(100.0, max(0.0, a + b * math.log10(x))) for x in xs],
+                    "--",
+                    color=color,
+                    alpha=0.6,
+                    label=f"{label}: extrapolation (not measured)",
+                )
         ax.axvline(PAPER_SAMPLES, color="grey", ls="--")
         ax.text(PAPER_SAMPLES, 50, " paper's budget\n (6.4 M; not run)", color="grey", fontsize=8)
         ax.set_xscale("log")
@@ -107,8 +129,11 @@ def main() -> None:
         ax.set_ylabel(f"{args.condition} {name} (%)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.suptitle(f"{args.task}, {args.condition} occlusion: checkpoints of CPU runs (cosine schedule over the "
-                 "largest budget; x = single training seeds)", fontsize=9)
+    fig.suptitle(
+        f"{args.task}, {args.condition} occlusion: checkpoints of CPU runs (cosine schedule over the "
+        "largest budget; x = single training seeds)",
+        fontsize=9,
+    )
     fig.tight_layout()
     args.output.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.output, dpi=120)

@@ -43,7 +43,9 @@ def small_policy_config(policy_type: str, device: str):
         import importlib.util
 
         if importlib.util.find_spec("diffusers") is None:
-            raise ImportError("--policy-type diffusion needs diffusers: pip install 'lerobot[diffusion]==0.6.1'")
+            raise ImportError(
+                "--policy-type diffusion needs diffusers: pip install 'lerobot[diffusion]==0.6.1'"
+            )
         return make_policy_config(
             "diffusion", **common, horizon=16, n_action_steps=8, drop_n_last_frames=7,
             down_dims=(64, 128), diffusion_step_embed_dim=32, spatial_softmax_num_keypoints=16,
@@ -70,10 +72,18 @@ def synthetic_stats(image_key: str, action_std_fraction: float) -> dict:
     img_shape = (3, 1, 1)
     return {
         OBS_STATE: {"mean": t(home), "std": t((hi - lo) / 4), "min": t(lo), "max": t(hi)},
-        ACTION: {"mean": t(home), "std": t(half), "min": t(np.maximum(home - half, lo)),
-                 "max": t(np.minimum(home + half, hi))},
-        image_key: {"mean": t(np.reshape(IMAGENET_MEAN, img_shape)), "std": t(np.reshape(IMAGENET_STD, img_shape)),
-                    "min": t(np.zeros(img_shape)), "max": t(np.ones(img_shape))},
+        ACTION: {
+            "mean": t(home),
+            "std": t(half),
+            "min": t(np.maximum(home - half, lo)),
+            "max": t(np.minimum(home + half, hi)),
+        },
+        image_key: {
+            "mean": t(np.reshape(IMAGENET_MEAN, img_shape)),
+            "std": t(np.reshape(IMAGENET_STD, img_shape)),
+            "min": t(np.zeros(img_shape)),
+            "max": t(np.ones(img_shape)),
+        },
     }
 
 
@@ -122,7 +132,9 @@ def make_random_policy(
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--output-dir", type=Path, required=True, help="where to write the checkpoint")
     parser.add_argument("--policy-type", choices=POLICY_TYPES, default="act",
                         help="built-in LeRobot policy (diffusion needs the lerobot[diffusion] extra)")

@@ -66,7 +66,9 @@ def parse_log(path: Path, log_freq: int, start_step: int = 0) -> dict[str, list[
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("runs", nargs="+", help="NAME=LOGFILE pairs, one per training run")
     parser.add_argument("--log-freq", type=int, required=True, help="the runs' --log_freq")
     parser.add_argument("--output", type=Path, required=True, help="PNG to write")

@@ -7,8 +7,8 @@ log's wall time, bavo-eval's results.json), so its numbers are the measured ones
         --eval outputs/eval/afar_s1000_006000/results.json --output checkpoints/afar_cube_handoff
 
 Inference settings (`--num-inference-steps`, `--n-action-steps`) are written into the shipped config.json and
-the card says they differ from training; `--notes FILE` adds how they were chosen. `--checkpoint DIR` re-ships a
-`pretrained_model` folder (e.g. the shipped one, in place) when the training run is not on this machine;
+the card says they differ from training; `--notes FILE` adds how they were chosen. `--checkpoint DIR` re-ships
+a `pretrained_model` folder (e.g. the shipped one, in place) when the training run is not on this machine;
 `--eval` may be given once per results.json (e.g. Stage and Clean evaluated separately).
 """
 
@@ -24,12 +24,14 @@ MAX_BYTES = 7_000_000  # the size a shipped checkpoint may take in the repositor
 
 
 def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
-    """Rewrite `model.safetensors` with only the tensors inference reads (ManiFlow / A-FAR: the EMA copy, or the
-    trained model when `use_ema_for_inference` is off; `ManiFlowPolicy.inference_state_keys`); loading it fills
-    the other copy. Returns (tensors kept, tensors dropped)."""
+    """Rewrite `model.safetensors` with only the tensors inference reads (ManiFlow / A-FAR: the EMA copy, or
+    the trained model when `use_ema_for_inference` is off; `ManiFlowPolicy.inference_state_keys`); loading it
+    fills the other copy. Returns (tensors kept, tensors dropped)."""
     from safetensors.torch import load_file, save_file
 
-    used, unused = ("ema_model.", "model.") if config.get("use_ema_for_inference", True) else ("model.", "ema_model.")
+    used, unused = (
+        ("ema_model.", "model.") if config.get("use_ema_for_inference", True) else ("model.", "ema_model.")
+    )
     tensors = load_file(str(file))
     kept = {k: v for k, v in tensors.items() if not k.startswith(unused)}
     if not any(k.startswith(used) for k in kept):
@@ -82,34 +84,51 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         seed = results.get("seed", 1000)
         for key, cell in sorted(results["cells"].items()):
             task, cond = key.split("/")
-            table.append(f"| {task} | {cond} | {cell['n_episodes']} | {seed}-{seed + cell['n_episodes'] - 1} | "
-                         f"{cell['sr']:.1f} | {cell['tps']:.1f} |")
+            table.append(
+                f"| {task} | {cond} | {cell['n_episodes']} | {seed}-{seed + cell['n_episodes'] - 1} | "
+                f"{cell['sr']:.1f} | {cell['tps']:.1f} |"
+            )
         conds = ",".join(sorted({k.split("/")[1] for k in results["cells"]}))
         reproduce.append(f"`bavo-eval --policy checkpoints/{name} --tasks cube_handoff --conditions {conds} "
                          f"--episodes {results['episodes']} --seed {seed}`")
     cells = [c for results in evals for c in results["cells"].values()]
-    status = ("\n**Status: it does not succeed yet (SR 0 in every cell below).** It is shipped so that the demo, both\n"
-              "evaluators and the Hub recipe run a real learned policy; the failure ladder in\n"
-              "docs/results/ladder_cube_handoff.md says what the CPU budget reached.\n"
-              if all(c["sr"] == 0 for c in cells) else "")
-    wall = f"{wall_min:.1f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
+    status = (
+        "\n**Status: it does not succeed yet (SR 0 in every cell below).** It is shipped so that the demo, "
+        "both\n"
+        "evaluators and the Hub recipe run a real learned policy; the failure ladder in\n"
+        "docs/results/ladder_cube_handoff.md says what the CPU budget reached.\n"
+        if all(c["sr"] == 0 for c in cells)
+        else ""
+    )
+    wall = (
+        f"{wall_min:.1f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
+    )
     if data is None:
-        data_text = (f"`{ds['repo_id']}` (its `bavo-collect` record was not on this machine when the checkpoint "
-                     "was shipped, so the card cannot say more).")
+        data_text = (
+            f"`{ds['repo_id']}` (its `bavo-collect` record was not on this machine when the checkpoint "
+            "was shipped, so the card cannot say more)."
+        )
         frames = None
     else:
         frames = data["frames"]
         noise = data["execution_noise"]
         noise_flag = f" --execution-noise {noise['std']}" if noise else ""
-        noise_text = (f"DART-style execution noise: the env executed the expert's arm targets plus an AR(1) offset "
-                      f"of std {noise['std']} rad (correlation {noise['correlation']}), the clean targets are "
-                      "recorded; " if noise else "")
-        data_text = (f"`bavo-collect --task cube_handoff --condition {data['condition']} --episodes {data['episodes']} "
-                     f"--repo-id {data['repo_id']} --root {data['root']} --workers 2{noise_flag}` "
-                     f"({noise_text}{data['episodes']} successful episodes from seeds {data['base_seed']}-"
-                     f"{data['next_seed'] - 1}, {data['discarded']} failed attempts discarded, {frames:,} frames, "
-                     "simulator-exact teacher), then its `points` view (`python -m lerobot_bavo.datasets.views "
-                     "--view points`).")
+        noise_text = (
+            f"DART-style execution noise: the env executed the expert's arm targets plus an AR(1) offset "
+            f"of std {noise['std']} rad (correlation {noise['correlation']}), the clean targets are "
+            "recorded; "
+            if noise
+            else ""
+        )
+        data_text = (
+            f"`bavo-collect --task cube_handoff --condition {data['condition']} --episodes "
+            f"{data['episodes']} "
+            f"--repo-id {data['repo_id']} --root {data['root']} --workers 2{noise_flag}` "
+            f"({noise_text}{data['episodes']} successful episodes from seeds {data['base_seed']}-"
+            f"{data['next_seed'] - 1}, {data['discarded']} failed attempts discarded, {frames:,} frames, "
+            "simulator-exact teacher), then its `points` view (`python -m lerobot_bavo.datasets.views "
+            "--view points`)."
+        )
     epochs = f"{steps * batch / frames:.1f} epochs; " if frames else ""
     extra = [f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
     binary = config.get("binary_action_dims", [6, 13])
@@ -124,22 +143,22 @@ A-FAR (ManiFlow + WorldQueryFormer future tokens + gated fusion + relational dis
 `lerobot-train` on scripted demonstrations of `cube_handoff`, at the `{pol['preset']}`
 size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and docs/DESIGN.md for every size
 that differs from the paper, and why). Inputs: `observation.point_cloud` (256 coloured points in the robot
-base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample) and
-`observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
-{config['n_action_steps']} executed per call{chunk_note}, sampled with {config['num_inference_steps']} Euler steps{steps_note}, the
-gripper commands (action dims {list(binary)}) snapped to fully open or fully closed at inference
-(`binary_action_dims`). Teacher features are training-only.
+base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample)
+and `observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
+{config['n_action_steps']} executed per call{chunk_note}, sampled with {config['num_inference_steps']} Euler
+steps{steps_note}, the gripper commands (action dims {list(binary)}) snapped to fully open or fully closed at
+inference (`binary_action_dims`). Teacher features are training-only.
 
 ## Data
 {data_text}
 
 ## Training
 `lerobot-train --policy.type=afar --policy.preset={pol['preset']} {' '.join(extra)}
---dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch} --steps={train['steps']}
---seed={train['seed']} --num_workers=0` (`scripts/train_cube_handoff.sh afar` with the matching environment
-variables). Budget: {steps} steps x batch {batch} = {steps * batch:,} samples{schedule} ({epochs}the paper: 100K x 64 =
-6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine schedule with {pol['scheduler_warmup_steps']} warm-up
-steps, EMA weights for inference.
+--dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch}
+--steps={train['steps']} --seed={train['seed']} --num_workers=0` (`scripts/train_cube_handoff.sh afar` with
+the matching environment variables). Budget: {steps} steps x batch {batch} = {steps * batch:,}
+samples{schedule} ({epochs}the paper: 100K x 64 = 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine
+schedule with {pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inference.
 
 ## Results (bavo-eval; the demonstrations used seeds below 1000)
 {chr(10).join(table)}
@@ -163,37 +182,63 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--run", type=Path, help="lerobot-train --output_dir")
-    source.add_argument("--checkpoint", type=Path,
-                        help="a pretrained_model folder to ship instead of --run/--step (may be --output itself)")
-    p.add_argument("--step", default="last",
-                   help="checkpoint step folder (e.g. 006000) or last; with --checkpoint, the step it was saved at "
-                        "(for the card's budget) or last")
+    source.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="a pretrained_model folder to ship instead of --run/--step (may be --output itself)",
+    )
+    p.add_argument(
+        "--step",
+        default="last",
+        help="checkpoint step folder (e.g. 006000) or last; with --checkpoint, the step it was saved at "
+        "(for the card's budget) or last",
+    )
     p.add_argument("--eval", type=Path, required=True, action="append",
                    help="bavo-eval results.json of this checkpoint (repeat for several runs)")
     p.add_argument("--notes", type=Path, default=None, help="a Markdown file appended to the card's results")
     p.add_argument("--output", type=Path, default=Path("checkpoints/afar_cube_handoff"))
     p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
-    p.add_argument("--point-frame", choices=POINT_FRAMES, default=None,
-                   help="frame of the training clouds; default: read from the training dataset's bavo-collect record")
-    p.add_argument("--num-inference-steps", type=int, default=None,
-                   help="write this Euler step count into the shipped config.json (an inference setting; the card "
-                        "says so); default: as trained")
-    p.add_argument("--n-action-steps", type=int, default=None,
-                   help="write this number of actions executed per policy call into the shipped config.json (an "
-                        "inference setting, 1 to horizon - n_obs_steps + 1; the card says so); default: as trained")
-    p.add_argument("--all-weights", action="store_true",
-                   help="ship the whole model.safetensors (training copy and EMA) instead of the inference weights")
+    p.add_argument(
+        "--point-frame",
+        choices=POINT_FRAMES,
+        default=None,
+        help="frame of the training clouds; default: read from the training dataset's bavo-collect record",
+    )
+    p.add_argument(
+        "--num-inference-steps",
+        type=int,
+        default=None,
+        help="write this Euler step count into the shipped config.json (an inference setting; the card "
+        "says so); default: as trained",
+    )
+    p.add_argument(
+        "--n-action-steps",
+        type=int,
+        default=None,
+        help="write this number of actions executed per policy call into the shipped config.json (an "
+        "inference setting, 1 to horizon - n_obs_steps + 1; the card says so); default: as trained",
+    )
+    p.add_argument(
+        "--all-weights",
+        action="store_true",
+        help="ship the whole model.safetensors (training copy and EMA) instead of the inference weights",
+    )
     args = p.parse_args()
     src = args.checkpoint if args.checkpoint else args.run / "checkpoints" / args.step / "pretrained_model"
     if not (src / "config.json").is_file():
         raise SystemExit(f"no checkpoint at {src}")
     args.output.mkdir(parents=True, exist_ok=True)
-    names = list(FILES) + [f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))]
+    names = list(FILES) + [
+        f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))
+    ]
     for name in names:
         if (src / name).resolve() != (args.output / name).resolve():
             shutil.copy2(src / name, args.output / name)
     config = json.loads((args.output / "config.json").read_text())
-    for key, value in (("num_inference_steps", args.num_inference_steps), ("n_action_steps", args.n_action_steps)):
+    for key, value in (
+        ("num_inference_steps", args.num_inference_steps),
+        ("n_action_steps", args.n_action_steps),
+    ):
         if value is not None:
             if value < 1:
                 raise SystemExit(f"--{key.replace('_', '-')} must be >= 1")

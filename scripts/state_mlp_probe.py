@@ -7,10 +7,11 @@ MSE, batch 256 x 6000 steps (about 1 min on one core), 20 evaluation episodes in
 issue's reference model (which reached 8/10 on Clean). Not a LeRobot policy and never shipped: its numbers
 are diagnostics, reported as such in docs/results/ladder_cube_handoff.md.
 
-    python scripts/state_mlp_probe.py record --condition clean --episodes 40 --noise 0.01 --out /tmp/probe/dart.npz
-    python scripts/state_mlp_probe.py record --dataset outputs/datasets/bavo_cube_handoff_state --out /tmp/probe/stage.npz
-    python scripts/state_mlp_probe.py train --data /tmp/probe/dart.npz --out /tmp/probe/dart.pt
-    python scripts/state_mlp_probe.py eval --model /tmp/probe/dart.pt --condition clean --episodes 20
+    python scripts/state_mlp_probe.py record --condition clean --episodes 40 --noise 0.01 --out
+    /tmp/probe/dart.npz python scripts/state_mlp_probe.py record --dataset
+    outputs/datasets/bavo_cube_handoff_state --out /tmp/probe/stage.npz python scripts/state_mlp_probe.py
+    train --data /tmp/probe/dart.npz --out /tmp/probe/dart.pt python scripts/state_mlp_probe.py eval --model
+    /tmp/probe/dart.pt --condition clean --episodes 20
 
 `record` rolls out the scripted expert itself (no images are kept, so it is fast) or reads a `state` training
 view of a bavo-collect dataset; seeds 0.., evaluation seeds 1000.. as everywhere in this project.
@@ -35,8 +36,12 @@ def record(args) -> None:
 
         df = pd.concat([pd.read_parquet(f) for f in sorted(glob.glob(f"{args.dataset}/data/*/*.parquet"))])
         df = df.sort_values("index")
-        arrays = {"S": np.stack(df["observation.state"].values), "E": np.stack(df["observation.environment_state"].values),
-                  "A": np.stack(df["action"].values), "EP": df["episode_index"].to_numpy()}
+        arrays = {
+            "S": np.stack(df["observation.state"].values),
+            "E": np.stack(df["observation.environment_state"].values),
+            "A": np.stack(df["action"].values),
+            "EP": df["episode_index"].to_numpy(),
+        }
         np.savez(args.out, **arrays)
         print(f"{len(arrays['S'])} frames of {len(np.unique(arrays['EP']))} episodes -> {args.out}")
         return
@@ -117,7 +122,9 @@ def train(args) -> None:
         if step % 1000 == 0 or step == args.steps - 1:
             print(f"step {step}: loss {loss.item():.5f}", flush=True)
     print(f"trained on {n} frames in {time.perf_counter() - t0:.0f} s")
-    torch.save({"net": net.state_dict(), "xm": xm, "xs": xs, "am": am, "as": as_, "n_in": x.shape[1]}, args.out)
+    torch.save(
+        {"net": net.state_dict(), "xm": xm, "xs": xs, "am": am, "as": as_, "n_in": x.shape[1]}, args.out
+    )
 
 
 def evaluate(args) -> None:

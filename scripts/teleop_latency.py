@@ -47,7 +47,9 @@ def main() -> int:
                 page.wait_for_function("window.bavo.status.state === 'running'", timeout=60000)
                 rng = random.Random(0)
                 # a small demonstration while measuring: camera look-at and a few arm moves
-                script = ["3", "l"] + ["a"] * 6 + ["2"] + ["d"] * 8 + ["r"] * 4 + ["w"] * 6 + ["1"] + ["d"] * 8
+                script = (
+                    ["3", "l"] + ["a"] * 6 + ["2"] + ["d"] * 8 + ["r"] * 4 + ["w"] * 6 + ["1"] + ["d"] * 8
+                )
                 for k in range(args.presses):
                     key = script[k % len(script)]
                     if key in ("1", "2", "3", "l"):

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The default test suite (excludes tests marked `slow`; run those with: scripts/test.sh -m slow).
+# Ruff, then the default test suite (excludes tests marked `slow`; run those with: scripts/test.sh -m slow).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # Another apt (unattended upgrades, a second set-up) holds its lock: wait for it instead of failing.
@@ -12,5 +12,7 @@ if ! command -v chromium >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt
     apt-get update -qq $APT_WAIT && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $APT_WAIT chromium >/dev/null || \
         echo "warning: chromium could not be installed; the browser tests will be skipped" >&2
 fi
+# Lint first (the configuration is in pyproject.toml): a finding fails the test command.
+.venv/bin/ruff check lerobot_bavo lerobot_env_bavo tests benchmarks scripts
 export OPENBLAS_NUM_THREADS=1 OPENBLAS_CORETYPE="${OPENBLAS_CORETYPE:-Haswell}" MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
 exec .venv/bin/python -m pytest "$@"

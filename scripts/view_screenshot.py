@@ -44,7 +44,13 @@ async def _capture(ws_url: str, wait: float, width: int, height: int) -> bytes:
                     return data["result"]
             raise RuntimeError("DevTools connection closed")
 
-        await call("Emulation.setDeviceMetricsOverride", width=width, height=height, deviceScaleFactor=1, mobile=False)
+        await call(
+            "Emulation.setDeviceMetricsOverride",
+            width=width,
+            height=height,
+            deviceScaleFactor=1,
+            mobile=False,
+        )
         await asyncio.sleep(wait)
         shot = await call("Page.captureScreenshot", format="png")
         return base64.b64decode(shot["data"])
@@ -64,9 +70,18 @@ def main(argv: list[str] | None = None) -> None:
     if exe is None:
         raise SystemExit("chromium not found: apt-get install chromium")
     with tempfile.TemporaryDirectory() as profile:
-        proc = subprocess.Popen([exe, *FLAGS, f"--user-data-dir={profile}", f"--remote-debugging-port={args.port}",
-                                 f"--window-size={args.width},{args.height}", args.url],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        proc = subprocess.Popen(
+            [
+                exe,
+                *FLAGS,
+                f"--user-data-dir={profile}",
+                f"--remote-debugging-port={args.port}",
+                f"--window-size={args.width},{args.height}",
+                args.url,
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         try:
             deadline = time.time() + 30
             while True:

@@ -1,5 +1,6 @@
 """`lerobot_private.arrow_episode_tables`: LeRobot's writer gets the same episode tables, and writes the same
-parquet bytes, when it builds them directly in Arrow instead of through `datasets.Dataset.from_dict` (issue 11)."""
+parquet bytes, when it builds them directly in Arrow instead of through `datasets.Dataset.from_dict` (issue
+11)."""
 
 from __future__ import annotations
 
@@ -29,8 +30,12 @@ def _columns(n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     cloud = rng.normal(size=(n, 12)).astype(np.float32)
     cloud[1, 3] = np.nan  # NaN and signed zero are values, not nulls, on both paths
     cloud[2, 0] = -0.0
-    return {"observation.point_cloud": cloud, "observation.teacher.valid": (rng.random(n) > 0.5).astype(np.float32),
-            "annotation.progress": rng.integers(0, 6, n), "timestamp": np.arange(n, dtype=np.float32) / 25}
+    return {
+        "observation.point_cloud": cloud,
+        "observation.teacher.valid": (rng.random(n) > 0.5).astype(np.float32),
+        "annotation.progress": rng.integers(0, 6, n),
+        "timestamp": np.arange(n, dtype=np.float32) / 25,
+    }
 
 
 def _parquet_bytes(table) -> bytes:
@@ -81,7 +86,11 @@ def test_lerobot_writes_the_same_files_with_direct_tables(tmp_path, monkeypatch)
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     features = {
-        "observation.images.active": {"dtype": "video", "shape": (24, 32, 3), "names": ["height", "width", "channels"]},
+        "observation.images.active": {
+            "dtype": "video",
+            "shape": (24, 32, 3),
+            "names": ["height", "width", "channels"],
+        },
         "observation.point_cloud": {"dtype": "float32", "shape": (12,), "names": None},
         "observation.teacher.valid": {"dtype": "float32", "shape": (1,), "names": None},
         "annotation.progress": {"dtype": "int64", "shape": (1,), "names": None},
@@ -92,8 +101,16 @@ def test_lerobot_writes_the_same_files_with_direct_tables(tmp_path, monkeypatch)
 
     def write(root, direct: bool):
         rng = np.random.default_rng(7)
-        ds = LeRobotDataset.create("t/arrow", 25, features, root=root, use_videos=True, streaming_encoding=True,
-                                   encoder_queue_maxsize=64, video_backend="pyav")
+        ds = LeRobotDataset.create(
+            "t/arrow",
+            25,
+            features,
+            root=root,
+            use_videos=True,
+            streaming_encoding=True,
+            encoder_queue_maxsize=64,
+            video_backend="pyav",
+        )
         # bavo-collect's writer skips LeRobot's no-op image embedding pass either way (it would write the
         # datasets fingerprint of each episode's in-memory table into the file)
         with arrow_episode_tables() if direct else skip_noop_image_embedding():
@@ -101,10 +118,15 @@ def test_lerobot_writes_the_same_files_with_direct_tables(tmp_path, monkeypatch)
             for n in (30, 17):
                 cols = _columns(n, rng)
                 for t in range(n):
-                    ds.add_frame({"observation.images.active": rng.integers(0, 255, (24, 32, 3), dtype=np.uint8),
-                                  "observation.point_cloud": cols["observation.point_cloud"][t],
-                                  "observation.teacher.valid": cols["observation.teacher.valid"][t:t + 1],
-                                  "annotation.progress": cols["annotation.progress"][t:t + 1], "task": "t"})
+                    ds.add_frame(
+                        {
+                            "observation.images.active": rng.integers(0, 255, (24, 32, 3), dtype=np.uint8),
+                            "observation.point_cloud": cols["observation.point_cloud"][t],
+                            "observation.teacher.valid": cols["observation.teacher.valid"][t : t + 1],
+                            "annotation.progress": cols["annotation.progress"][t : t + 1],
+                            "task": "t",
+                        }
+                    )
                 ds.save_episode()
         ds.finalize()
         return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*.parquet"))}

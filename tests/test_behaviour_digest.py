@@ -139,8 +139,13 @@ def test_rollout_record_digest(key):
     full CVG window (H = 60) under Random-time Occlusion (events, their CVG, placements), and a whole
     expert episode under Stage Occlusion (all three Stage events, success)."""
     policy, condition, length = key.split("/")
-    env = BavoEnv(task="cube_handoff", condition=condition, episode_length=None if length == "full" else int(length),
-                  compute_cvg=condition == "random", **SMALL)
+    env = BavoEnv(
+        task="cube_handoff",
+        condition=condition,
+        episode_length=None if length == "full" else int(length),
+        compute_cvg=condition == "random",
+        **SMALL,
+    )
     try:
         record = run_episode(env, ExpertAgent(env, frozen_camera=policy == "expert-frozen-camera"), SEED)
     finally:

@@ -50,7 +50,8 @@ REFERENCE_COLUMNS: dict[str, str] = {
     "annotation.occlusion_target": "72de07267600717d",
     "annotation.visibility": "9a73ad44642fae69",
     "annotation.episode_seed": "89eb74c0c4f4077d",
-    # Added by issue 14 (who demonstrated: 0 = expert), all zeros; every other column and statistic is unchanged.
+    # Added by issue 14 (who demonstrated: 0 = expert), all zeros; every other column and statistic is
+    # unchanged.
     "annotation.source": "72de07267600717d",
     "annotation.occluder_pose": "2bb6524d9c87e1da",  # added for bavo-view (issue 13)
     "timestamp": "aef64e45a1c0884e",
@@ -84,7 +85,8 @@ def dataset_digests(root: Path) -> tuple[dict[str, str], str]:
         values = [v for t in tables for v in t.column(name).to_pylist()]
         columns[name] = _column_digest(values)
     stats = json.loads((root / "meta" / "stats.json").read_text())
-    stats.pop("annotation.source", None)  # issue 14's added column: pinned above, kept out of the reference stats
+    # issue 14's added column: pinned above, kept out of the reference stats
+    stats.pop("annotation.source", None)
 
     def rounded(x):
         if isinstance(x, dict):
@@ -102,9 +104,20 @@ def dataset_digests(root: Path) -> tuple[dict[str, str], str]:
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("content") / "bavo_content"
-    cfg = CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id="tester/bavo_content", root=root,
-                        workers=0, commit_every=1, settings=SETTINGS, episode_length=STEPS, keep_failures=True,
-                        use_videos=False, progress=False)
+    cfg = CollectConfig(
+        task="cube_handoff",
+        condition="stage",
+        episodes=2,
+        repo_id="tester/bavo_content",
+        root=root,
+        workers=0,
+        commit_every=1,
+        settings=SETTINGS,
+        episode_length=STEPS,
+        keep_failures=True,
+        use_videos=False,
+        progress=False,
+    )
     collect(cfg)
     return root
 

@@ -1,12 +1,12 @@
-"""`bavo-collect --executor ray` (issue 15): a Ray collection writes the same dataset as a local one, a Ray worker
-killed mid-episode is retried with nothing lost or duplicated, a killed-and-resumed Ray collection finishes the
-same dataset, and bad executor settings are refused.
+"""`bavo-collect --executor ray` (issue 15): a Ray collection writes the same dataset as a local one, a Ray
+worker killed mid-episode is retried with nothing lost or duplicated, a killed-and-resumed Ray collection
+finishes the same dataset, and bad executor settings are refused.
 
-The episodes are the ones `test_collect_content.py` pins (2 Cube Handoff Stage episodes, seeds 0 and 1, 30 steps,
-48 x 64 images, 32 points, images in the parquet files), compared per column with its digest helper, against both
-a local collection and the pinned reference digests. The Ray tests share one private local Ray
-(`ray.init(num_cpus=2)`, loopback only) and are skipped where Ray (the optional 'ray' extra) is missing. About 60 s
-on 2 cores.
+The episodes are the ones `test_collect_content.py` pins (2 Cube Handoff Stage episodes, seeds 0 and 1, 30
+steps, 48 x 64 images, 32 points, images in the parquet files), compared per column with its digest helper,
+against both a local collection and the pinned reference digests. The Ray tests share one private local Ray
+(`ray.init(num_cpus=2)`, loopback only) and are skipped where Ray (the optional 'ray' extra) is missing. About
+60 s on 2 cores.
 """
 
 from __future__ import annotations
@@ -40,17 +40,28 @@ MARKS_ENV = "BAVO_TEST_COLLECT_MARKS"
 
 
 def marked_ship_job(job: dict) -> dict:
-    """The real Ray collection job, after marking `<seed>.<pid>` in $BAVO_TEST_COLLECT_MARKS and a short pause (so
-    a test can kill the worker while the episode is in progress)."""
+    """The real Ray collection job, after marking `<seed>.<pid>` in $BAVO_TEST_COLLECT_MARKS and a short pause
+    (so a test can kill the worker while the episode is in progress)."""
     (Path(os.environ[MARKS_ENV]) / f"{job['seed']}.{os.getpid()}").touch()
     time.sleep(0.5)
     return ship_job(job)
 
 
 def _config(root: Path, episodes: int = 2, **kw) -> CollectConfig:
-    return CollectConfig(task="cube_handoff", condition="stage", episodes=episodes, repo_id="tester/bavo_ray", root=root,
-                         commit_every=1, settings=SETTINGS, episode_length=STEPS, keep_failures=True,
-                         use_videos=False, progress=False, **kw)
+    return CollectConfig(
+        task="cube_handoff",
+        condition="stage",
+        episodes=episodes,
+        repo_id="tester/bavo_ray",
+        root=root,
+        commit_every=1,
+        settings=SETTINGS,
+        episode_length=STEPS,
+        keep_failures=True,
+        use_videos=False,
+        progress=False,
+        **kw,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -85,8 +96,8 @@ def test_ray_collection_is_identical_to_local(local_ray, local_dataset, tmp_path
 
 @needs_ray
 def test_a_killed_ray_worker_loses_and_duplicates_nothing(local_ray, local_dataset, tmp_path, monkeypatch):
-    """SIGKILL the Ray worker recording seed 1 mid-episode: Ray runs it again in another worker; the dataset has
-    seeds 0 and 1 once each and is identical to the local one."""
+    """SIGKILL the Ray worker recording seed 1 mid-episode: Ray runs it again in another worker; the dataset
+    has seeds 0 and 1 once each and is identical to the local one."""
     _, marks = local_ray
     clear_marks(marks)
     monkeypatch.setattr(collect_module, "ship_job", marked_ship_job)
@@ -127,8 +138,22 @@ def test_bad_executor_settings_are_refused(tmp_path, monkeypatch):
 
 
 def test_cli_executor_flags(tmp_path, capsys):
-    args = ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "tester/x", "--root", str(tmp_path / "x")]
-    assert collect_module.build_parser().parse_args(args + ["--executor", "ray", "--ray-address", "auto"]).executor == "ray"
+    args = [
+        "--task",
+        "cube_handoff",
+        "--episodes",
+        "1",
+        "--repo-id",
+        "tester/x",
+        "--root",
+        str(tmp_path / "x"),
+    ]
+    assert (
+        collect_module.build_parser()
+        .parse_args(args + ["--executor", "ray", "--ray-address", "auto"])
+        .executor
+        == "ray"
+    )
     assert collect_module.main(args + ["--ray-address", "127.0.0.1:6379"]) == 2
     assert "bavo-collect: error: --ray-address needs --executor ray" in capsys.readouterr().err
     assert collect_module.main(args + ["--executor", "ray", "--workers", "0"]) == 2

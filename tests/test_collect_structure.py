@@ -117,7 +117,10 @@ def test_collection_record_round_trips_and_keeps_unknown_keys(tmp_path):
     rec.episodes.append({"episode_index": 0, "seed": 0, "length": 12, "recoveries": 1})
     rec.save(tmp_path)
     on_disk = json.loads((tmp_path / "meta" / "bavo_collection.json").read_text())
-    assert on_disk["pending_commit"] == {"seeds": [4, 6], "next_seed": 7} and on_disk["command"] == "bavo-collect ..."
+    assert (
+        on_disk["pending_commit"] == {"seeds": [4, 6], "next_seed": 7}
+        and on_disk["command"] == "bavo-collect ..."
+    )
     assert on_disk["format"] == 1
     back = CollectionRecord.load(tmp_path)
     assert back == rec and back.frames == 12
@@ -158,8 +161,12 @@ def test_workers_reuse_freed_memory_for_large_arrays():
         "    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)\n"
         "print(ok, faults[1], faults[2])\n")
     env = {**os.environ, "BAVO_LIGHT_IMPORT": "1"}
-    out = {mode: subprocess.run([sys.executable, "-c", probe, mode], capture_output=True, text=True, check=True,
-                                env=env).stdout.split() for mode in ("retain", "default")}
+    out = {
+        mode: subprocess.run(
+            [sys.executable, "-c", probe, mode], capture_output=True, text=True, check=True, env=env
+        ).stdout.split()
+        for mode in ("retain", "default")
+    }
     ok, second, third = out["retain"]
     if ok != "True":
         pytest.skip("mallopt not available (not glibc)")

@@ -71,7 +71,8 @@ def test_schema_flat_layouts_and_reshape_helpers():
 
 # ----------------------------------------------------------------------------- round trip
 def test_round_trip_with_delta_timestamps(dataset_root):
-    """Create (collector), finalize, reload; 2 observation steps and 16 actions, as ManiFlow / A-FAR load them."""
+    """Create (collector), finalize, reload; 2 observation steps and 16 actions, as ManiFlow / A-FAR load
+    them."""
     from lerobot_bavo.datasets.recording import EpisodeRecorder, episode_frames
     from lerobot_bavo.teacher import teacher_targets
 
@@ -267,8 +268,8 @@ def _discard_odd_seeds(real_run_job):
 
 
 def test_an_option_recorded_only_when_used_must_match_too(tmp_path):
-    """The settings check compares both sides' keys: a dataset recorded with execution noise (an entry only noisy
-    records have) is not continued by a run without it, nor a human (teleop) dataset by the expert."""
+    """The settings check compares both sides' keys: a dataset recorded with execution noise (an entry only
+    noisy records have) is not continued by a run without it, nor a human (teleop) dataset by the expert."""
     from lerobot_bavo.experts.perturbation import ExecutionNoise
 
     root = tmp_path / "noisy"
@@ -364,7 +365,9 @@ def test_a_learned_teacher_recomputes_the_cache_of_a_stored_dataset(dataset_root
     clip = make_clip(ep, anchor=3)
     assert not clip.has_privileged_state and clip.rgb.shape == (32, 48, 64, 3)
 
-    new = recompute_teacher_cache(ds, _PixelTeacher(), output_dir=tmp_path / "recached", repo_id="tester/recached")
+    new = recompute_teacher_cache(
+        ds, _PixelTeacher(), output_dir=tmp_path / "recached", repo_id="tester/recached"
+    )
     new = load_bavo_dataset("tester/recached", root=tmp_path / "recached")
     assert new.meta.features[S.TEACHER_Z0]["shape"] == (32 * 4,)
     item = new[STEPS + 2]
@@ -441,7 +444,8 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
             assert a[S.TEACHER_OCCLUDER].numpy().tolist() == expected.astype(np.float32).tolist()
         with pytest.raises(FileExistsError, match="exists"):
             make_view(dataset_root, view, output_root=tmp_path / view)
-        assert view_source(tmp_path / f"demo_{view}") == tmp_path / "demo"  # how make_view names its default copy
+        # how make_view names its default copy
+        assert view_source(tmp_path / f"demo_{view}") == tmp_path / "demo"
     assert view_source(tmp_path / "demo") == tmp_path / "demo"
     assert view_source(tmp_path / "demo_pointsy") == tmp_path / "demo_pointsy"
     with pytest.raises(ValueError, match="unknown view 'depth'"):
@@ -511,7 +515,9 @@ def test_teacher_depth_reused_from_the_observation_is_the_segmentation_pass_dept
     assert len(both) == 12
     for t, (read_back, reused) in enumerate(both):
         assert reused.dtype == read_back.dtype == np.float32
-        assert np.array_equal(read_back, reused), f"frame {t}: observation depth differs from the segmentation pass"
+        assert np.array_equal(read_back, reused), (
+            f"frame {t}: observation depth differs from the segmentation pass"
+        )
 
 
 # ----------------------------------------------------------------------------- the background writer

@@ -19,10 +19,32 @@ BIN = Path(sys.executable).parent / "bavo-collect"
 
 def _cmd(root: Path, episodes: int) -> list[str]:
     exe = [str(BIN)] if BIN.exists() else [sys.executable, "-m", "lerobot_bavo.datasets.collect"]
-    return exe + ["--task", "cube_handoff", "--condition", "stage", "--episodes", str(episodes),
-                  "--repo-id", "tester/bavo_cli", "--root", str(root), "--workers", "2", "--commit-every", "2",
-                  "--image-height", "48", "--image-width", "64", "--n-points", "32", "--episode-length", "25",
-                  "--keep-failures", "--no-progress"]
+    return exe + [
+        "--task",
+        "cube_handoff",
+        "--condition",
+        "stage",
+        "--episodes",
+        str(episodes),
+        "--repo-id",
+        "tester/bavo_cli",
+        "--root",
+        str(root),
+        "--workers",
+        "2",
+        "--commit-every",
+        "2",
+        "--image-height",
+        "48",
+        "--image-width",
+        "64",
+        "--n-points",
+        "32",
+        "--episode-length",
+        "25",
+        "--keep-failures",
+        "--no-progress",
+    ]
 
 
 @pytest.mark.slow

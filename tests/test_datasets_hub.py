@@ -62,7 +62,9 @@ class FakeHub:
                 folder = Path(folder_path)
                 files = [str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()]
                 dst = hub.branch_dir(repo_id, revision)
-                for rel in filter_repo_objects(files, allow_patterns=allow_patterns, ignore_patterns=ignore_patterns):
+                for rel in filter_repo_objects(
+                    files, allow_patterns=allow_patterns, ignore_patterns=ignore_patterns
+                ):
                     (dst / rel).parent.mkdir(parents=True, exist_ok=True)
                     shutil.copy2(folder / rel, dst / rel)
 
@@ -97,7 +99,11 @@ class FakeHub:
         src = self.root / repo_id / "tags" / revision if revision in self.tags(repo_id) else None
         if src is None:
             raise _not_found(f"{repo_id}@{revision} not found")
-        dst = Path(local_dir) if local_dir is not None else Path(cache_dir) / repo_id.replace("/", "--") / revision
+        dst = (
+            Path(local_dir)
+            if local_dir is not None
+            else Path(cache_dir) / repo_id.replace("/", "--") / revision
+        )
         files = [str(p.relative_to(src)) for p in src.rglob("*") if p.is_file()]
         for rel in filter_repo_objects(files, allow_patterns=allow_patterns, ignore_patterns=ignore_patterns):
             (dst / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -115,7 +121,9 @@ def hub(tmp_path, monkeypatch):
     fake = FakeHub(tmp_path / "hub")
     monkeypatch.setattr(ld, "HfApi", fake.api)
     monkeypatch.setattr(lu, "HfApi", fake.api)
-    monkeypatch.setattr(huggingface_hub.DatasetCard, "push_to_hub", lambda card, *a, **kw: fake.push_card(card, *a, **kw))
+    monkeypatch.setattr(
+        huggingface_hub.DatasetCard, "push_to_hub", lambda card, *a, **kw: fake.push_card(card, *a, **kw)
+    )
     monkeypatch.setattr(ld, "snapshot_download", fake.snapshot_download)
     monkeypatch.setattr(md, "snapshot_download", fake.snapshot_download)
     monkeypatch.setattr(md, "HF_LEROBOT_HOME", tmp_path / "lerobot_home")
@@ -127,9 +135,20 @@ def hub(tmp_path, monkeypatch):
 
 def test_push_to_hub_and_load_back_by_repo_id(hub, tmp_path):
     root = tmp_path / "local" / "bavo_hub"
-    collect(CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id=REPO, root=root, workers=0,
-                          settings=S.ObservationSettings(48, 64, 32), episode_length=20, keep_failures=True,
-                          progress=False))
+    collect(
+        CollectConfig(
+            task="cube_handoff",
+            condition="stage",
+            episodes=2,
+            repo_id=REPO,
+            root=root,
+            workers=0,
+            settings=S.ObservationSettings(48, 64, 32),
+            episode_length=20,
+            keep_failures=True,
+            progress=False,
+        )
+    )
     (root / ".bavo_staging").mkdir()
     (root / ".bavo_staging" / "leftover.npz").write_bytes(b"x")  # must not be uploaded
 

@@ -245,8 +245,10 @@ def test_observations_and_info_are_copies(small_env):
 # --------------------------------------------------------------------------------------------
 def _actions(n: int) -> list[np.ndarray]:
     g = np.random.default_rng(1234)
-    return [HOME + np.concatenate([g.normal(0, 0.03, 6), [0], g.normal(0, 0.03, 6), [0], g.normal(0, 0.03, 7)])
-            for _ in range(n)]
+    return [
+        HOME + np.concatenate([g.normal(0, 0.03, 6), [0], g.normal(0, 0.03, 6), [0], g.normal(0, 0.03, 7)])
+        for _ in range(n)
+    ]
 
 
 def _rollout(env: BavoEnv, seed: int, actions) -> list[tuple[dict, dict]]:
@@ -397,7 +399,9 @@ def test_point_pixels_rgb_and_projection(two_views):
         np.testing.assert_allclose(pv, v, atol=0.02)
         # Cropped to the workspace box, above the table top.
         xyz = obs["point_cloud"][:, :3]
-        assert xyz[:, 2].min() >= 0.003 and np.abs(xyz[:, 0]).max() <= 0.611 and np.abs(xyz[:, 1]).max() <= 0.371
+        assert (
+            xyz[:, 2].min() >= 0.003 and np.abs(xyz[:, 0]).max() <= 0.611 and np.abs(xyz[:, 1]).max() <= 0.371
+        )
         # 512 distinct points.
         assert np.unique(pix, axis=0).shape[0] == pix.shape[0]
 

@@ -1,5 +1,5 @@
-"""`datasets.episode_stats` gives LeRobot 0.6.1's per-episode statistics bit for bit (same keys, order, shapes,
-dtypes and values), on adversarial columns and on a real recorded episode's dataset columns."""
+"""`datasets.episode_stats` gives LeRobot 0.6.1's per-episode statistics bit for bit (same keys, order,
+shapes, dtypes and values), on adversarial columns and on a real recorded episode's dataset columns."""
 
 from __future__ import annotations
 
@@ -61,7 +61,9 @@ def test_equals_lerobot_on_a_recorded_episode():
         record = recorder.record(seed=5)
     finally:
         recorder.close()
-    targets = teacher_targets(record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX)
+    targets = teacher_targets(
+        record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX
+    )
     cols, features = writer_stats_inputs({k: v for k, v in episode_frames(record, targets).items()
                                           if k != S.OBS_IMAGE})
     assert_identical(compute_episode_stats(cols, features), lerobot_episode_stats(cols, features))

@@ -1,10 +1,11 @@
-"""`bavo-eval --grid FILE.yaml` (issue 15): the mean ± std aggregation over training seeds (a pure function, checked
-on hand-computed values), a tiny real grid run twice (the second run does no work and writes the same results; the
-table's mean ± std recomputed by hand from results.json), clear errors for bad grid files, and the grid on Ray
-giving the same results.json as locally (skipped without Ray).
+"""`bavo-eval --grid FILE.yaml` (issue 15): the mean ± std aggregation over training seeds (a pure function,
+checked on hand-computed values), a tiny real grid run twice (the second run does no work and writes the same
+results; the table's mean ± std recomputed by hand from results.json), clear errors for bad grid files, and
+the grid on Ray giving the same results.json as locally (skipped without Ray).
 
-The tiny grid is Cube Handoff under Random-time, 1 episode, methods `expert` and `mix` (two "training seeds": the
-expert and the frozen-camera expert, whose CVG differ, so the std is not 0): 3 scripted episodes, ~15 s on 2 cores.
+The tiny grid is Cube Handoff under Random-time, 1 episode, methods `expert` and `mix` (two "training seeds":
+the expert and the frozen-camera expert, whose CVG differ, so the std is not 0): 3 scripted episodes, ~15 s on
+2 cores.
 """
 
 from __future__ import annotations
@@ -83,27 +84,39 @@ def test_tiny_grid_resumes_and_reports_mean_std(tmp_path, monkeypatch, capsys):
         values = [seeds[label][metric] for label in ("0", "1")]
         expected.append(f"{statistics.mean(values):.1f} ± {statistics.stdev(values):.1f}")
     assert cells[3:] == expected
-    expert_row = next(line for line in (out / "results.md").read_text().splitlines() if line.startswith("| expert |"))
+    expert_row = next(
+        line for line in (out / "results.md").read_text().splitlines() if line.startswith("| expert |")
+    )
     cvg = results["methods"]["expert"]["cells"]["cube_handoff/random"]["seeds"]["0"]["cvg"]
     assert expert_row.rstrip(" |").endswith(f"| {cvg:.1f}")  # one training seed: the value alone
     assert "±" not in expert_row
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"tasks": ["cube_handof"]}, r"unknown task 'cube_handof'; choose from cube_handoff"),
-    ({"conditions": ["clean", "fog"]}, r"unknown condition 'fog'"),
-    ({"episode": 3}, r"unknown key 'episode'"),
-    ({"episodes": 0}, r"episodes must be an integer >= 1, got 0"),
-    ({"methods": {"afar": {"checkpoint": "expert"}}}, r"methods.afar: unknown key 'checkpoint'"),
-    ({"methods": {"afar": {"tasks": ["cube_handoff"]}}}, r"methods.afar: missing key 'checkpoints'"),
-    ({"methods": {"afar": "no/such/ckpt"}}, r"methods.afar \(training seed 0\): checkpoint 'no/such/ckpt' not found"),
-    ({"methods": {"afar": {"checkpoints": {"s1": "expert", "s2": "no/such"}}}},
-     r"methods.afar \(training seed s2\): checkpoint 'no/such' not found"),
-    ({"methods": {"e": {"checkpoints": "expert", "conditions": ["stage"]}}},
-     r"methods.e.conditions \(of the grid's\): unknown condition 'stage'"),
-    ({"methods": {"a/b": "expert"}}, r"a method name must be a plain name"),
-    ({"methods": {}}, r"methods must be a non-empty mapping"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"tasks": ["cube_handof"]}, r"unknown task 'cube_handof'; choose from cube_handoff"),
+        ({"conditions": ["clean", "fog"]}, r"unknown condition 'fog'"),
+        ({"episode": 3}, r"unknown key 'episode'"),
+        ({"episodes": 0}, r"episodes must be an integer >= 1, got 0"),
+        ({"methods": {"afar": {"checkpoint": "expert"}}}, r"methods.afar: unknown key 'checkpoint'"),
+        ({"methods": {"afar": {"tasks": ["cube_handoff"]}}}, r"methods.afar: missing key 'checkpoints'"),
+        (
+            {"methods": {"afar": "no/such/ckpt"}},
+            r"methods.afar \(training seed 0\): checkpoint 'no/such/ckpt' not found",
+        ),
+        (
+            {"methods": {"afar": {"checkpoints": {"s1": "expert", "s2": "no/such"}}}},
+            r"methods.afar \(training seed s2\): checkpoint 'no/such' not found",
+        ),
+        (
+            {"methods": {"e": {"checkpoints": "expert", "conditions": ["stage"]}}},
+            r"methods.e.conditions \(of the grid's\): unknown condition 'stage'",
+        ),
+        ({"methods": {"a/b": "expert"}}, r"a method name must be a plain name"),
+        ({"methods": {}}, r"methods must be a non-empty mapping"),
+    ],
+)
 def test_bad_grid_files_are_named(change, message):
     with pytest.raises(GridError, match=r"^grid: .*" + message):
         parse_grid({**TINY, **change})
@@ -123,7 +136,9 @@ def test_cli_grid_errors(tmp_path, capsys):
         cli.main(["--grid", str(_write(tmp_path / "g.yaml", {**TINY, "tasks": ["nope"]})),
                   "--output-dir", str(tmp_path / "out")])
     with pytest.raises(SystemExit):  # the file sets the policy and the episodes
-        cli.main(["--grid", str(bad), "--policy", "expert", "--episodes", "3", "--output-dir", str(tmp_path / "o")])
+        cli.main(
+            ["--grid", str(bad), "--policy", "expert", "--episodes", "3", "--output-dir", str(tmp_path / "o")]
+        )
     assert "--policy, --episodes cannot be used with --grid" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli.main(["--output-dir", str(tmp_path / "o")])

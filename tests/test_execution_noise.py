@@ -1,4 +1,5 @@
-"""DART-style execution noise for demonstrations (`experts/perturbation.py`, `bavo-collect --execution-noise`)."""
+"""DART-style execution noise for demonstrations (`experts/perturbation.py`,
+`bavo-collect --execution-noise`)."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def test_stationary_std_is_the_configured_one():
     noise = ExecutionNoise(std=0.01, correlation=0.9).process(seed=3)
     action = np.zeros(C.ACTION_DIM)
     offsets = np.stack([noise.perturb(action)[PERTURBED_JOINTS] for _ in range(40_000)])[1000:]
-    # 39 K correlated samples (rho 0.9: ~2 K effective per joint, 12 joints): the pooled std is within a few %.
+    # 39 K correlated samples (rho 0.9: ~2 K effective per joint, 12 joints): the pooled std is within a few
+    # %.
     assert offsets.std() == pytest.approx(0.01, rel=0.05)
     assert abs(offsets.mean()) < 0.002
 
@@ -62,7 +64,8 @@ def test_recorder_keeps_clean_actions_and_is_seeded():
     np.testing.assert_array_equal(noisy.state, again.state)  # same seed, same perturbed episode
     np.testing.assert_array_equal(noisy.action, again.action)
     arm = PERTURBED_JOINTS
-    assert np.abs(noisy.state[20:, arm] - clean.state[20:, arm]).max() > 0.005  # the arms were pushed off the plan
+    # the arms were pushed off the plan
+    assert np.abs(noisy.state[20:, arm] - clean.state[20:, arm]).max() > 0.005
     # The reach phase plans from the cube's pose at reset, in the expert's own joint space: its recorded
     # targets are the clean ones although the executed ones were perturbed.
     np.testing.assert_array_equal(noisy.action, clean.action)
@@ -78,10 +81,24 @@ def test_noise_is_part_of_what_a_resumed_collection_must_match():
 
 
 def test_cli_refuses_negative_noise(tmp_path, capsys):
-    with pytest.raises(SystemExit) as exit_:  # a usage error, like every flag CollectConfig refuses
-        main(["--task", "cube_handoff", "--episodes", "1", "--repo-id", "a/b", "--root", str(tmp_path / "d"),
-              "--execution-noise", "-0.1", "--workers", "0", "--no-progress"])
-    assert exit_.value.code == 2
+    code = main(
+        [
+            "--task",
+            "cube_handoff",
+            "--episodes",
+            "1",
+            "--repo-id",
+            "a/b",
+            "--root",
+            str(tmp_path / "d"),
+            "--execution-noise",
+            "-0.1",
+            "--workers",
+            "0",
+            "--no-progress",
+        ]
+    )
+    assert code == 2
     assert "execution noise std" in capsys.readouterr().err
 
 

@@ -156,7 +156,9 @@ def test_toy_condition_runs_through_env_and_bavo_eval(registered):
 
 
 def test_unknown_condition_lists_the_registered_ones(registered):
-    with pytest.raises(ValueError, match="unknown condition 'foggy'; registered: clean, stage, random, toy_every12"):
+    with pytest.raises(
+        ValueError, match="unknown condition 'foggy'; registered: clean, stage, random, toy_every12"
+    ):
         BavoEnv(task="toy_puck", condition="foggy", **SMALL)
 
 

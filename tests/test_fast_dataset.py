@@ -26,9 +26,21 @@ def views(tmp_path_factory) -> dict[str, Path]:
     from lerobot_bavo.datasets.views import make_view
 
     root = tmp_path_factory.mktemp("fast") / "bavo_fast"
-    collect(CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id=REPO, root=root, workers=0,
-                          commit_every=1, settings=SETTINGS, episode_length=STEPS, progress=False,
-                          keep_failures=True))
+    collect(
+        CollectConfig(
+            task="cube_handoff",
+            condition="stage",
+            episodes=2,
+            repo_id=REPO,
+            root=root,
+            workers=0,
+            commit_every=1,
+            settings=SETTINGS,
+            episode_length=STEPS,
+            progress=False,
+            keep_failures=True,
+        )
+    )
     out = {"full": root}
     for view in ("points", "state"):
         out[view] = root.with_name(f"bavo_fast_{view}")
@@ -49,7 +61,9 @@ def _assert_same_item(a: dict, b: dict, where: str) -> None:
         if isinstance(va, str):
             assert va == vb, f"{where}: {key}"
             continue
-        assert va.dtype == vb.dtype and va.shape == vb.shape, f"{where}: {key} {va.dtype}{tuple(va.shape)} vs {vb.dtype}{tuple(vb.shape)}"
+        assert va.dtype == vb.dtype and va.shape == vb.shape, (
+            f"{where}: {key} {va.dtype}{tuple(va.shape)} vs {vb.dtype}{tuple(vb.shape)}"
+        )
         assert torch.equal(va, vb), f"{where}: {key} values differ"
 
 

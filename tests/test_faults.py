@@ -34,9 +34,20 @@ def _save_checkpoint(path: Path, n_points: int = N_POINTS) -> Path:
     }
     stats = {k: {"min": np.full(f["shape"], -1.0, np.float32), "max": np.full(f["shape"], 1.0, np.float32)}
              for k, f in features.items()}
-    cfg = make_policy_config("maniflow", preset="cpu_fast", device="cpu", points_per_step=0, dit_hidden_dim=32,
-                             dit_num_layers=1, dit_num_heads=2, point_encoder_hidden_dims=(16,), point_feature_dim=16,
-                             state_feature_dim=8, time_embed_hidden_dim=16, time_freq_dim=16)
+    cfg = make_policy_config(
+        "maniflow",
+        preset="cpu_fast",
+        device="cpu",
+        points_per_step=0,
+        dit_hidden_dim=32,
+        dit_num_layers=1,
+        dit_num_heads=2,
+        point_encoder_hidden_dims=(16,),
+        point_feature_dim=16,
+        state_feature_dim=8,
+        time_embed_hidden_dim=16,
+        time_freq_dim=16,
+    )
     policy = make_policy(cfg, ds_meta=SimpleNamespace(features=features, stats=stats))
     pre, post = make_pre_post_processors(cfg, dataset_stats=stats)
     policy.save_pretrained(path)
@@ -89,9 +100,25 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
     pre["steps"].insert(0, {"class": "subprocess.Popen", "config": {"args": ["touch", str(marker)]}})
     (evil / "policy_preprocessor.json").write_text(json.dumps(pre))
 
-    proc = subprocess.run(_cli("bavo-eval") + ["--policy", str(evil), "--tasks", "cube_handoff", "--conditions",
-                                               "clean", "--episodes", "1", "--output-dir", str(tmp_path / "out")],
-                          capture_output=True, text=True, timeout=300, env=_env())
+    proc = subprocess.run(
+        _cli("bavo-eval")
+        + [
+            "--policy",
+            str(evil),
+            "--tasks",
+            "cube_handoff",
+            "--conditions",
+            "clean",
+            "--episodes",
+            "1",
+            "--output-dir",
+            str(tmp_path / "out"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=_env(),
+    )
     assert proc.returncode != 0
     assert "subprocess.Popen" in proc.stderr and "--trust-remote-code" in proc.stderr
     with _small_env() as env, pytest.raises(UntrustedCheckpointError, match="subprocess.Popen"):
@@ -103,12 +130,19 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
 
     # other spellings of the same attack: unknown names, non-step classes, a registered step told to run Hub
     # code (LeRobot's action tokenizer defaults to trust_remote_code=True), a state file outside the folder
-    for step in ({"registry_name": "not_a_registered_step"}, {"class": "os.system"},
-                 {"class": "lerobot_bavo.checkpoints.checkpoint_digest"}, {"config": {}},
-                 {"registry_name": "action_tokenizer_processor", "config": {"action_tokenizer_name": "evil/tok"}},
-                 {"registry_name": "tokenizer_processor", "config": {"tokenizer_name": "x", "trust_remote_code": True}},
-                 {"registry_name": "reward_classifier_processor", "config": {"pretrained_path": "evil/classifier"}},
-                 {"registry_name": "normalizer_processor", "state_file": "../../elsewhere.safetensors"}):
+    for step in (
+        {"registry_name": "not_a_registered_step"},
+        {"class": "os.system"},
+        {"class": "lerobot_bavo.checkpoints.checkpoint_digest"},
+        {"config": {}},
+        {"registry_name": "action_tokenizer_processor", "config": {"action_tokenizer_name": "evil/tok"}},
+        {
+            "registry_name": "tokenizer_processor",
+            "config": {"tokenizer_name": "x", "trust_remote_code": True},
+        },
+        {"registry_name": "reward_classifier_processor", "config": {"pretrained_path": "evil/classifier"}},
+        {"registry_name": "normalizer_processor", "state_file": "../../elsewhere.safetensors"},
+    ):
         pre_bad = json.loads((checkpoint / "policy_preprocessor.json").read_text())
         pre_bad["steps"].append(step)
         (evil / "policy_preprocessor.json").write_text(json.dumps(pre_bad))
@@ -118,8 +152,11 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
     # policy types: unregistered, registered but loading Hub code when built, a PEFT adapter
     (evil / "policy_preprocessor.json").write_text((checkpoint / "policy_preprocessor.json").read_text())
     base_cfg = json.loads((checkpoint / "config.json").read_text())
-    for change, message in (({"type": "no_such_policy"}, "not a registered"), ({"type": "pi0_fast"}, "'pi0_fast' is not audited"),
-                            ({"use_peft": True}, "use_peft")):
+    for change, message in (
+        ({"type": "no_such_policy"}, "not a registered"),
+        ({"type": "pi0_fast"}, "'pi0_fast' is not audited"),
+        ({"use_peft": True}, "use_peft"),
+    ):
         (evil / "config.json").write_text(json.dumps({**base_cfg, **change}))
         with pytest.raises(UntrustedCheckpointError, match=message):
             check_processor_steps(evil)
@@ -135,12 +172,21 @@ def test_every_registered_step_that_loads_from_the_hub_is_refused():
     import lerobot_bavo.policies  # noqa: F401
     from lerobot_bavo.checkpoints import HUB_LOADING_STEPS
 
-    loading = {name for name in ProcessorStepRegistry.list()
-               if any(w in inspect.getsource(ProcessorStepRegistry.get(name)) for w in ("from_pretrained", "hf_hub_download"))}
-    assert loading <= HUB_LOADING_STEPS, f"registered steps that load from the Hub but are not refused: {loading - HUB_LOADING_STEPS}"
+    loading = {
+        name
+        for name in ProcessorStepRegistry.list()
+        if any(
+            w in inspect.getsource(ProcessorStepRegistry.get(name))
+            for w in ("from_pretrained", "hf_hub_download")
+        )
+    }
+    assert loading <= HUB_LOADING_STEPS, (
+        f"registered steps that load from the Hub but are not refused: {loading - HUB_LOADING_STEPS}"
+    )
 
 
-# ----------------------------------------------------------------------------- 2. mismatched / partial checkpoints
+# ----------------------------------------------------------------------------- 2. mismatched / partial
+# checkpoints
 def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoint, tmp_path):
     from safetensors.torch import load_file, save_file
 
@@ -159,14 +205,24 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
         "observation.images.active": {"type": "VISUAL", "shape": [3, 96, 128]},
         "observation.state": {"type": "STATE", "shape": [21]}}}))
     assert env_settings(act) == {"image_height": 96, "image_width": 128, "environment_state": False}
-    with _small_env(image_height=240, image_width=320, n_points=8) as big, pytest.raises(
-            CheckpointMismatchError, match=r"image_height: checkpoint 96, env 240; image_width: checkpoint 128, env 320"):
+    with (
+        _small_env(image_height=240, image_width=320, n_points=8) as big,
+        pytest.raises(
+            CheckpointMismatchError,
+            match=r"image_height: checkpoint 96, env 240; image_width: checkpoint 128, env 320",
+        ),
+    ):
         LeRobotPolicyAgent(act, big)
     (act / "config.json").write_text(json.dumps({"type": "act", "input_features": {
         "observation.point_cloud": {"type": "STATE", "shape": [100]}}}))
-    with pytest.raises(CheckpointMismatchError, match=r"config.json: observation.point_cloud shape \[100\] is not N x 6"):
+    with pytest.raises(
+        CheckpointMismatchError, match=r"config.json: observation.point_cloud shape \[100\] is not N x 6"
+    ):
         env_settings(act)
-    with _small_env(n_points=64) as wrong, pytest.raises(CheckpointMismatchError, match="n_points: checkpoint 32, env 64"):
+    with (
+        _small_env(n_points=64) as wrong,
+        pytest.raises(CheckpointMismatchError, match="n_points: checkpoint 32, env 64"),
+    ):
         LeRobotPolicyAgent(checkpoint, wrong)
 
     # a ManiFlow fed another point count (e.g. by lerobot-eval --env.n_points) names the feature
@@ -196,7 +252,9 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
         config = json.loads((invalid / "config.json").read_text())
         config["n_action_steps"] = config["horizon"]
         (invalid / "config.json").write_text(json.dumps(config))
-        with pytest.raises(CheckpointMismatchError, match=r"because: `n_action_steps` must be in \[1, horizon"):
+        with pytest.raises(
+            CheckpointMismatchError, match=r"because: `n_action_steps` must be in \[1, horizon"
+        ):
             LeRobotPolicyAgent(invalid, env)
         agent = LeRobotPolicyAgent(checkpoint, env)  # the complete one loads and acts
         obs, info = env.reset(seed=0)
@@ -224,7 +282,9 @@ def test_mismatched_and_partial_checkpoints_are_refused_with_the_reason(checkpoi
     results = evaluate(str(same_path), ["cube_handoff"], ["clean"], 1, 1000, out)  # no episode left to run
     assert results["cells"]["cube_handoff/clean"]["n_episodes"] == 1
     (out / "run.json").unlink()
-    (out / "episodes.jsonl").write_text(json.dumps({**record, "checkpoint_sha256": checkpoint_digest(partial)}) + "\n")
+    (out / "episodes.jsonl").write_text(
+        json.dumps({**record, "checkpoint_sha256": checkpoint_digest(partial)}) + "\n"
+    )
     with pytest.raises(SystemExit, match="episodes of other checkpoints"):
         evaluate(str(same_path), ["cube_handoff"], ["clean"], 1, 1000, out)
 
@@ -240,14 +300,21 @@ def test_the_point_frame_comes_from_the_training_data_and_a_conflict_is_refused(
     (source / "meta").mkdir(parents=True)
     (source / "meta" / "bavo_collection.json").write_text(json.dumps({"settings": {"point_frame": "camera"}}))
     cam = _copy(checkpoint, tmp_path / "cam")
-    (cam / "train_config.json").write_text(json.dumps({"dataset": {"repo_id": "t/bavo_x_points",
-                                                                   "root": str(tmp_path / "datasets" / "bavo_x_points")}}))
+    (cam / "train_config.json").write_text(
+        json.dumps(
+            {"dataset": {"repo_id": "t/bavo_x_points", "root": str(tmp_path / "datasets" / "bavo_x_points")}}
+        )
+    )
     assert env_settings(cam)["point_frame"] == "camera"
     assert env_kwargs_for_run(str(cam))["point_frame"] == "camera"
-    with pytest.raises(SystemExit, match="--point-frame base conflicts with the checkpoint: point_frame: checkpoint "
-                                         "'camera'"):
+    with pytest.raises(
+        SystemExit, match="--point-frame base conflicts with the checkpoint: point_frame: checkpoint 'camera'"
+    ):
         env_kwargs_for_run(str(cam), "base")
-    with _small_env() as env, pytest.raises(CheckpointMismatchError, match="point_frame: checkpoint 'camera', env 'base'"):
+    with (
+        _small_env() as env,
+        pytest.raises(CheckpointMismatchError, match="point_frame: checkpoint 'camera', env 'base'"),
+    ):
         LeRobotPolicyAgent(cam, env)
     # nothing records it: base, with a warning that says how to change it
     assert env_kwargs_for_run(str(checkpoint))["point_frame"] == "base"
@@ -272,7 +339,9 @@ def test_a_checkpoint_without_its_data_carries_its_point_frame(checkpoint, tmp_p
     assert recorded_point_frame(cam) == "camera"
     assert env_settings(cam)["point_frame"] == "camera"
     (cam / INPUTS_RECORD).write_text('{"point_frame": "world"}')
-    with pytest.raises(CheckpointMismatchError, match="bavo_inputs.json: point_frame must be 'base' or 'camera'"):
+    with pytest.raises(
+        CheckpointMismatchError, match="bavo_inputs.json: point_frame must be 'base' or 'camera'"
+    ):
         recorded_point_frame(cam)
     (cam / INPUTS_RECORD).write_text("{not json")
     with pytest.raises(CheckpointMismatchError, match="bavo_inputs.json is not a valid inputs record"):
@@ -343,9 +412,25 @@ cli.main(sys.argv[3:])
 """
 
 
-def _fake_eval(seconds: float, limit: int, args: list[str], **kw) -> subprocess.CompletedProcess | subprocess.Popen:
-    cmd = [sys.executable, "-c", FAKE_EVAL, str(seconds), str(limit), "--policy", "expert", "--tasks", "cube_handoff",
-           "--conditions", "clean", "--videos", "0", *args]
+def _fake_eval(
+    seconds: float, limit: int, args: list[str], **kw
+) -> subprocess.CompletedProcess | subprocess.Popen:
+    cmd = [
+        sys.executable,
+        "-c",
+        FAKE_EVAL,
+        str(seconds),
+        str(limit),
+        "--policy",
+        "expert",
+        "--tasks",
+        "cube_handoff",
+        "--conditions",
+        "clean",
+        "--videos",
+        "0",
+        *args,
+    ]
     if kw.pop("background", False):
         return subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=300)
@@ -387,8 +472,22 @@ def test_two_bavo_eval_runs_on_one_folder(tmp_path):
         assert (out / "run.json").exists(), first.communicate()[1]
         for spelling in (out, link):
             with pytest.raises(SystemExit, match=f"another bavo-eval is writing {out.resolve()}"):
-                eval_main(["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean", "--episodes", "6",
-                           "--videos", "0", "--output-dir", str(spelling)])
+                eval_main(
+                    [
+                        "--policy",
+                        "expert",
+                        "--tasks",
+                        "cube_handoff",
+                        "--conditions",
+                        "clean",
+                        "--episodes",
+                        "6",
+                        "--videos",
+                        "0",
+                        "--output-dir",
+                        str(spelling),
+                    ]
+                )
         stdout, stderr = first.communicate(timeout=120)
         assert first.returncode == 0, stderr
     finally:
@@ -438,17 +537,24 @@ def test_bad_arguments_and_files_give_clear_errors(tmp_path, capsys):
     a_file = tmp_path / "a_file"
     a_file.write_text("x")
     base = ["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean"]
-    for extra, message in ((["--seed", "-5"], "--seed must be >= 0"), (["--workers", "-3"], "--workers must be >= 1"),
-                           (["--videos", "-1"], "--videos must be >= 0")):
+    for extra, message in (
+        (["--seed", "-5"], "--seed must be >= 0"),
+        (["--workers", "-3"], "--workers must be >= 1"),
+        (["--videos", "-1"], "--videos must be >= 0"),
+    ):
         with pytest.raises(SystemExit):
             eval_main(base + ["--output-dir", str(tmp_path / "o")] + extra)
         assert message in capsys.readouterr().err
     with pytest.raises(SystemExit, match="is not a folder"):
         eval_main(base + ["--output-dir", str(a_file)])
-    for extra, message in ((["--root", str(a_file)], "is not a folder"), (["--seed", "-5"], "--seed must be >= 0"),
+    collect_args = ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "t/x"]
+    with pytest.raises(SystemExit):
+        collect_main(collect_args + ["--root", str(a_file)])
+    assert "is not a folder" in capsys.readouterr().err
+    # the flags CollectConfig checks (in one place): exit status 2 with the message, as for every config error
+    for extra, message in ((["--seed", "-5"], "--seed must be >= 0"),
                            (["--workers", "-3"], "--workers must be >= 0")):
-        with pytest.raises(SystemExit):
-            collect_main(["--task", "cube_handoff", "--episodes", "1", "--repo-id", "t/x"] + extra)
+        assert collect_main(collect_args + extra) == 2
         assert message in capsys.readouterr().err
 
 
@@ -480,7 +586,9 @@ def test_bad_dataset_metadata_and_nan_are_named(tmp_path):
     (meta / "stats.json").write_text("{not json")
     with pytest.raises(ValueError, match=r"stats.json: not valid JSON"):
         read_stats(tmp_path)
-    (meta / "stats.json").write_text(json.dumps({"observation.state": {"min": [float("nan"), 0.0], "max": [1.0, 1.0]}}))
+    (meta / "stats.json").write_text(
+        json.dumps({"observation.state": {"min": [float("nan"), 0.0], "max": [1.0, 1.0]}})
+    )
     with pytest.raises(ValueError, match=r"NaN in \['observation.state.min'\]"):
         read_stats(tmp_path)
     (meta / "info.json").write_text(json.dumps({"codebase_version": "v3.0", "features": None}))
@@ -513,10 +621,38 @@ def test_bavo_collect_names_the_broken_metadata_file_of_the_dataset_it_continues
     from lerobot_bavo.datasets.hub import SIDECAR
 
     root = tmp_path / "ds"
-    args = ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "t/x", "--root", str(root), "--workers", "0",
-            "--image-height", "32", "--image-width", "32", "--n-points", "8", "--no-progress"]
-    Collector(CollectConfig(task="cube_handoff", condition="stage", episodes=1, repo_id="t/x", root=root, workers=0,
-                            settings=S.ObservationSettings(32, 32, n_points=8), progress=False)).open()  # empty dataset
+    args = [
+        "--task",
+        "cube_handoff",
+        "--episodes",
+        "1",
+        "--repo-id",
+        "t/x",
+        "--root",
+        str(root),
+        "--workers",
+        "0",
+        "--image-height",
+        "32",
+        "--image-width",
+        "32",
+        "--n-points",
+        "8",
+        "--no-progress",
+    ]
+    Collector(
+        CollectConfig(
+            task="cube_handoff",
+            condition="stage",
+            episodes=1,
+            repo_id="t/x",
+            root=root,
+            workers=0,
+            # empty dataset
+            settings=S.ObservationSettings(32, 32, n_points=8),
+            progress=False,
+        )
+    ).open()
     good = {name: (root / name).read_text() for name in ("meta/info.json", str(SIDECAR))}
     for name, text, message in (
             ("meta/stats.json", "{not json", "stats.json: not valid JSON"),
@@ -544,9 +680,13 @@ def test_afar_refuses_nan_teacher_features():
                      output_features={"action": PolicyFeature(FeatureType.ACTION, (21,))})
     policy = AfarPolicy(cfg)
     policy.train()
-    batch = {"observation.point_cloud": torch.rand(2, 2, 8, 6), "observation.state": torch.rand(2, 2, 21),
-             "action": torch.rand(2, 16, 21), "observation.teacher.z0": torch.full((2, 2, 8, 3), float("nan")),
-             "observation.teacher.zf": torch.zeros(2, 2, 8, 3)}
+    batch = {
+        "observation.point_cloud": torch.rand(2, 2, 8, 6),
+        "observation.state": torch.rand(2, 2, 21),
+        "action": torch.rand(2, 16, 21),
+        "observation.teacher.z0": torch.full((2, 2, 8, 3), float("nan")),
+        "observation.teacher.zf": torch.zeros(2, 2, 8, 3),
+    }
     with pytest.raises(ValueError, match="teacher.z0' holds NaN"):
         policy.forward(batch)
 
@@ -561,7 +701,9 @@ def _watching(pid: int) -> bool:
     from lerobot_bavo.runtime.process import WATCH_THREAD_NAME
 
     try:
-        return any((t / "comm").read_text().strip() == WATCH_THREAD_NAME for t in Path(f"/proc/{pid}/task").iterdir())
+        return any(
+            (t / "comm").read_text().strip() == WATCH_THREAD_NAME for t in Path(f"/proc/{pid}/task").iterdir()
+        )
     except OSError:
         return False
 
@@ -579,12 +721,39 @@ def _alive(pid: int) -> bool:
 @pytest.mark.parametrize("tool", ["bavo-collect", "bavo-eval"])
 def test_kill_9_leaves_no_worker_behind(tool, tmp_path):
     args = {
-        "bavo-collect": ["--task", "cube_handoff", "--episodes", "20", "--repo-id", "t/kill", "--root",
-                         str(tmp_path / "ds"), "--workers", "2", "--no-progress"],
-        "bavo-eval": ["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "stage", "--episodes", "20",
-                      "--workers", "2", "--videos", "0", "--output-dir", str(tmp_path / "eval")],
+        "bavo-collect": [
+            "--task",
+            "cube_handoff",
+            "--episodes",
+            "20",
+            "--repo-id",
+            "t/kill",
+            "--root",
+            str(tmp_path / "ds"),
+            "--workers",
+            "2",
+            "--no-progress",
+        ],
+        "bavo-eval": [
+            "--policy",
+            "expert",
+            "--tasks",
+            "cube_handoff",
+            "--conditions",
+            "stage",
+            "--episodes",
+            "20",
+            "--workers",
+            "2",
+            "--videos",
+            "0",
+            "--output-dir",
+            str(tmp_path / "eval"),
+        ],
     }[tool]
-    proc = subprocess.Popen(_cli(tool) + args, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        _cli(tool) + args, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     try:
         deadline = time.time() + 120
         workers: set[int] = set()
@@ -592,9 +761,10 @@ def test_kill_9_leaves_no_worker_behind(tool, tmp_path):
             time.sleep(1.0)
             workers = _children(proc.pid)
         assert len(workers) >= 2, f"{tool} started no workers"
-        # A spawned worker imports for a while before its initializer (which starts the watch) runs; wait until
-        # every worker runs its watch thread (named bavo-watch), i.e. it is set up and working on episodes.
-        # (bavo-eval's workers are forked, bavo-collect's spawned: their command lines tell nothing.)
+        # A spawned worker imports for a while before its initializer (which starts the watch) runs; wait
+        # until every worker runs its watch thread (named bavo-watch), i.e. it is set up and working on
+        # episodes. (bavo-eval's workers are forked, bavo-collect's spawned: their command lines tell
+        # nothing.)
         deadline = time.time() + 240
         while time.time() < deadline and sum(_watching(p) for p in _children(proc.pid)) < 2:
             time.sleep(1.0)

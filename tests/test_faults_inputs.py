@@ -29,7 +29,8 @@ def _edited(checkpoint: Path, dst: Path, **changes) -> Path:
 
 
 def _finished_run(out: Path) -> dict[str, bytes]:
-    """An output folder holding a finished earlier run (what a refusal must leave untouched): name -> bytes."""
+    """An output folder holding a finished earlier run (what a refusal must leave untouched): name ->
+    bytes."""
     out.mkdir(parents=True, exist_ok=True)
     record = {"task": "cube_handoff", "condition": "clean", "seed": 1000, "success": True, "progress": 5}
     (out / "episodes.jsonl").write_text(json.dumps(record) + "\n")
@@ -38,22 +39,32 @@ def _finished_run(out: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in out.iterdir()}
 
 
-# ----------------------------------------------------------------------------- 4. checkpoint sizes and weights
-@pytest.mark.parametrize("field, value, message", [
-    ("num_inference_steps", 1_000_000_000, "`num_inference_steps` must be in [1, 1000], got 1000000000"),
-    ("dit_hidden_dim", -8, "`dit_hidden_dim` must be in [1, 4096], got -8"),
-    ("horizon", 10**7, "`horizon` must be in [1, 1000]"),
-    ("n_obs_steps", 5000, "`n_obs_steps` must be in [1, 32]"),
-    ("dit_num_layers", 10**6, "`dit_num_layers` must be in [1, 64]"),
-    ("dit_num_heads", 0, "`dit_num_heads` must be in [1, 64], got 0"),
-    ("point_encoder_hidden_dims", [16, 10**6], "`point_encoder_hidden_dims` must be in [1, 4096], got 1000000"),
-    ("points_per_step", 3_000_000, "`points_per_step` must be in [0, 16384]"),
-])
-def test_a_checkpoint_asking_for_absurd_sizes_is_refused_before_anything_is_built(checkpoint, tmp_path, field, value,
-                                                                                   message):
-    """Before: num_inference_steps 1e9 hung bavo-eval past 6 GB (the sampler schedule is precomputed), a negative
-    width failed deep in torch. Now the config's own check refuses it, in bavo-eval's main process, in
-    milliseconds, naming config.json, the field and the bound; an earlier run in the output folder is untouched."""
+# ----------------------------------------------------------------------------- 4. checkpoint sizes and
+# weights
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("num_inference_steps", 1_000_000_000, "`num_inference_steps` must be in [1, 1000], got 1000000000"),
+        ("dit_hidden_dim", -8, "`dit_hidden_dim` must be in [1, 4096], got -8"),
+        ("horizon", 10**7, "`horizon` must be in [1, 1000]"),
+        ("n_obs_steps", 5000, "`n_obs_steps` must be in [1, 32]"),
+        ("dit_num_layers", 10**6, "`dit_num_layers` must be in [1, 64]"),
+        ("dit_num_heads", 0, "`dit_num_heads` must be in [1, 64], got 0"),
+        (
+            "point_encoder_hidden_dims",
+            [16, 10**6],
+            "`point_encoder_hidden_dims` must be in [1, 4096], got 1000000",
+        ),
+        ("points_per_step", 3_000_000, "`points_per_step` must be in [0, 16384]"),
+    ],
+)
+def test_a_checkpoint_asking_for_absurd_sizes_is_refused_before_anything_is_built(
+    checkpoint, tmp_path, field, value, message
+):
+    """Before: num_inference_steps 1e9 hung bavo-eval past 6 GB (the sampler schedule is precomputed), a
+    negative width failed deep in torch. Now the config's own check refuses it, in bavo-eval's main process,
+    in milliseconds, naming config.json, the field and the bound; an earlier run in the output folder is
+    untouched."""
     from lerobot_bavo.checkpoints import CheckpointMismatchError
     from lerobot_bavo.eval.cli import evaluate
     from lerobot_bavo.eval.rollout import LeRobotPolicyAgent
@@ -81,8 +92,14 @@ def test_size_bounds_fit_the_paper_preset_and_name_the_limit():
     for preset in ("paper", "cpu", "cpu_fast"):  # every shipped size is inside the bounds
         ManiFlowConfig(preset=preset, device="cpu")
         AfarConfig(preset=preset, device="cpu")
-    ManiFlowConfig(preset="cpu", device="cpu", num_inference_steps=1000, dit_hidden_dim=1536, dit_num_layers=24,
-                   dit_num_heads=16)  # 2x the paper's width and depth: still allowed
+    ManiFlowConfig(
+        preset="cpu",
+        device="cpu",
+        num_inference_steps=1000,
+        dit_hidden_dim=1536,
+        dit_num_layers=24,
+        dit_num_heads=16,
+    )  # 2x the paper's width and depth: still allowed
     with pytest.raises(ValueError, match=r"`dit_num_layers` x `dit_hidden_dim`\^2 = 64 x 4096\^2 exceeds"):
         ManiFlowConfig(preset="cpu", device="cpu", dit_hidden_dim=4096, dit_num_layers=64, dit_num_heads=8)
     with pytest.raises(ValueError, match=r"`wqf_hidden_dim` must be in \[1, 4096\], got -64"):
@@ -92,12 +109,15 @@ def test_size_bounds_fit_the_paper_preset_and_name_the_limit():
             "observation.state": PolicyFeature(FeatureType.STATE, (50_000_000,))})
     assert MAX_STACK_SIZE > 12 * 768**2
     assert bound_problems({"dit_mlp_ratio": float("nan"), "n_points": True, "unrelated": -1}) == [
-        "`dit_mlp_ratio` must be in [0.01, 16.0], got nan", "`n_points` must be an integer in [2, 16384], got True"]
+        "`dit_mlp_ratio` must be in [0.01, 16.0], got nan",
+        "`n_points` must be an integer in [2, 16384], got True",
+    ]
 
 
 def test_observation_sizes_a_checkpoint_asks_the_env_for_are_bounded(tmp_path):
-    """A 3 M-point cloud or a 20 000 x 20 000 image in a checkpoint's input shapes (any policy type, e.g. ACT) is
-    refused where bavo-eval reads them, naming the file; the env and LeRobot's env config refuse them too."""
+    """A 3 M-point cloud or a 20 000 x 20 000 image in a checkpoint's input shapes (any policy type, e.g. ACT)
+    is refused where bavo-eval reads them, naming the file; the env and LeRobot's env config refuse them
+    too."""
     from lerobot_bavo.checkpoints import CheckpointMismatchError, env_settings
     from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.envs.configs import BavoEnvConfig
@@ -106,13 +126,21 @@ def test_observation_sizes_a_checkpoint_asks_the_env_for_are_bounded(tmp_path):
     act = tmp_path / "act"
     act.mkdir()
     for inputs, message in (
-            ({"observation.images.active": {"type": "VISUAL", "shape": [3, 20000, 20000]}},
-             r"`image_height` must be in \[16, 4096\], got 20000; `image_width` must be in \[16, 4096\], got 20000"),
-            ({"observation.point_cloud": {"type": "STATE", "shape": [3_000_000 * 6]}},
-             r"`n_points` must be in \[2, 16384\], got 3000000")):
+        (
+            {"observation.images.active": {"type": "VISUAL", "shape": [3, 20000, 20000]}},
+            r"`image_height` must be in \[16, 4096\], got 20000; `image_width` must be in \[16, 4096\], got "
+            r"20000",
+        ),
+        (
+            {"observation.point_cloud": {"type": "STATE", "shape": [3_000_000 * 6]}},
+            r"`n_points` must be in \[2, 16384\], got 3000000",
+        ),
+    ):
         (act / "config.json").write_text(json.dumps({"type": "act", "input_features": inputs}))
-        with pytest.raises(CheckpointMismatchError, match="config.json asks the env for observations out of bounds: "
-                                                          + message):
+        with pytest.raises(
+            CheckpointMismatchError,
+            match="config.json asks the env for observations out of bounds: " + message,
+        ):
             env_settings(act)
         with pytest.raises(SystemExit, match=message):
             env_kwargs_for_run(str(act))
@@ -140,7 +168,9 @@ def test_a_truncated_model_safetensors_is_named(checkpoint, tmp_path):
     weights.write_bytes(weights.read_bytes()[: weights.stat().st_size // 2])
     out = tmp_path / "eval"
     before = _finished_run(out)
-    with pytest.raises(SystemExit, match=r"model.safetensors is truncated or not a safetensors file \(.*incomplete"):
+    with pytest.raises(
+        SystemExit, match=r"model.safetensors is truncated or not a safetensors file \(.*incomplete"
+    ):
         evaluate(str(cut), ["cube_handoff"], ["clean"], 1, 1000, out)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     with _small_env() as env, pytest.raises(CheckpointMismatchError, match="model.safetensors is truncated"):
@@ -181,11 +211,13 @@ def small_rrd(tmp_path_factory) -> Path:
     return path
 
 
-@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads the listening sockets from /proc (Linux)")
+@pytest.mark.skipif(
+    not Path("/proc/net/tcp").exists(), reason="reads the listening sockets from /proc (Linux)"
+)
 def test_bavo_view_web_listens_on_loopback_only_and_stops_its_server(small_rrd):
-    """Before: rerun's SDK servers listened on 0.0.0.0 (the recording was readable from the network), and a start
-    could hang in serve_grpc before printing the URL. Now rerun's CLI serves it bound to 127.0.0.1; the URL is
-    printed once both ports accept connections; SIGTERM stops bavo-view and its server."""
+    """Before: rerun's SDK servers listened on 0.0.0.0 (the recording was readable from the network), and a
+    start could hang in serve_grpc before printing the URL. Now rerun's CLI serves it bound to 127.0.0.1; the
+    URL is printed once both ports accept connections; SIGTERM stops bavo-view and its server."""
     import os
     import re
     import select
@@ -195,13 +227,29 @@ def test_bavo_view_web_listens_on_loopback_only_and_stops_its_server(small_rrd):
     import urllib.request
 
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    proc = subprocess.Popen([sys.executable, "-m", "lerobot_bavo.viz", "--rrd", str(small_rrd), "--web",
-                             "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "lerobot_bavo.viz",
+            "--rrd",
+            str(small_rrd),
+            "--web",
+            "--web-port",
+            "0",
+            "--grpc-port",
+            "0",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         assert select.select([proc.stdout], [], [], 120)[0], "bavo-view printed nothing within 120 s (hung?)"
         line = proc.stdout.readline()  # the URL (or nothing: it ended)
-        m = re.search(r"serving the web viewer at http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1"
+        m = re.search(r"serving the web viewer at "
+                      r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1"
                       r"%3A(\d+)%2Fproxy \(this machine only", line)
         assert m, line + proc.stderr.read() if proc.poll() is not None else line
         web, grpc = int(m.group(1)), int(m.group(2))
@@ -214,7 +262,10 @@ def test_bavo_view_web_listens_on_loopback_only_and_stops_its_server(small_rrd):
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=30)
-    assert not Path(f"/proc/{children[0]}").exists() or "zombie" in Path(f"/proc/{children[0]}/status").read_text()
+    assert (
+        not Path(f"/proc/{children[0]}").exists()
+        or "zombie" in Path(f"/proc/{children[0]}/status").read_text()
+    )
     assert _listening(web) == [] and _listening(grpc) == []
 
 
@@ -254,8 +305,9 @@ methods: {expert: expert}
 
 def test_a_yaml_alias_bomb_and_other_hostile_grid_files_are_refused_quickly(tmp_path):
     """Before: the ~500-byte bomb under `tasks:` took 18 s and 2.3 GB (its repr in the error message), a
-    non-UTF-8 file gave a UnicodeDecodeError traceback. Now: refused in milliseconds, naming the file; messages
-    never repr more than a few dozen characters of what the file holds; a finished grid is untouched."""
+    non-UTF-8 file gave a UnicodeDecodeError traceback. Now: refused in milliseconds, naming the file;
+    messages never repr more than a few dozen characters of what the file holds; a finished grid is
+    untouched."""
     from lerobot_bavo.eval.cli import main
     from lerobot_bavo.eval.grid import MAX_GRID_BYTES, GridError, load_grid
 
@@ -264,8 +316,11 @@ def test_a_yaml_alias_bomb_and_other_hostile_grid_files_are_refused_quickly(tmp_
     bomb = tmp_path / "bomb.yaml"
     bomb.write_text(ALIAS_BOMB)
     t0 = time.perf_counter()
-    with pytest.raises(SystemExit, match=rf"grid file {bomb} is not valid YAML: .*anchors and aliases \(&name, \*name\) "
-                                         "are not allowed"):
+    with pytest.raises(
+        SystemExit,
+        match=rf"grid file {bomb} is not valid YAML: .*anchors and aliases \(&name, \*name\) "
+        "are not allowed",
+    ):
         main(["--grid", str(bomb), "--output-dir", str(out)])
     assert time.perf_counter() - t0 < 5
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
@@ -279,14 +334,26 @@ def test_a_yaml_alias_bomb_and_other_hostile_grid_files_are_refused_quickly(tmp_
         assert time.perf_counter() - t0 < 10 and str(path) in str(exc.value)
         return str(exc.value)
 
-    refused("alias.yaml", b"tasks: &t [cube_handoff]\nconditions: *t\nmethods: {expert: expert}\n", "anchors and aliases")
-    refused("latin1.yaml", "tasks: [caf\u00e9]\n".encode("latin-1"), r"is not UTF-8 text \(invalid continuation byte")
+    refused(
+        "alias.yaml",
+        b"tasks: &t [cube_handoff]\nconditions: *t\nmethods: {expert: expert}\n",
+        "anchors and aliases",
+    )
+    refused(
+        "latin1.yaml",
+        "tasks: [caf\u00e9]\n".encode("latin-1"),
+        r"is not UTF-8 text \(invalid continuation byte",
+    )
     refused("big.yaml", b"# padding\n" * (MAX_GRID_BYTES // 10 + 1), f"is over {MAX_GRID_BYTES} bytes")
-    refused("deep.yaml", b"tasks: " + b"[" * 200_000 + b"]" * 200_000 + b"\n", "cannot be read|not valid YAML")
+    refused(
+        "deep.yaml", b"tasks: " + b"[" * 200_000 + b"]" * 200_000 + b"\n", "cannot be read|not valid YAML"
+    )
     refused("digits.yaml", b"episodes: " + b"9" * 5000 + b"\nmethods: {expert: expert}\n", "cannot be read")
     # a long (alias-free) list: the message shows a few items, not all 50 000
     names = ", ".join(f"task{i}" for i in range(50_000)).encode()
-    message = refused("long.yaml", b"tasks: [" + names + b"]\nmethods: {expert: expert}\n", "unknown task 'task0'")
+    message = refused(
+        "long.yaml", b"tasks: [" + names + b"]\nmethods: {expert: expert}\n", "unknown task 'task0'"
+    )
     assert len(message) < 1000
     message = refused("long_value.yaml", b"methods: {expert: " + b"x" * 500_000 + b"}\n", "checkpoint 'xxx")
     assert len(message) < 1000
@@ -300,9 +367,10 @@ def _fake_run_job(job: dict) -> dict:
 
 
 def test_a_full_disk_while_writing_results_leaves_the_previous_results_whole(tmp_path, monkeypatch, capsys):
-    """Before: results.json was written in place, so a full disk left invalid JSON beside the previous results.md.
-    Now results.json and results.md are written through temporaries and renamed together: a failed write ends
-    the run with a message, leaves both previous files as they were (valid), and the re-run finishes them."""
+    """Before: results.json was written in place, so a full disk left invalid JSON beside the previous
+    results.md. Now results.json and results.md are written through temporaries and renamed together: a failed
+    write ends the run with a message, leaves both previous files as they were (valid), and the re-run
+    finishes them."""
     from test_faults import _fake_eval
 
     from lerobot_bavo.eval import cli, run
@@ -351,8 +419,11 @@ def test_result_files_are_written_all_or_none(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "fsync", failing_fsync)
     with pytest.raises(OSError, match="No space"):
         write_files_atomic({a: '{"new": 1}', b: b"new"})
-    assert a.read_text() == "{}" and b.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == [
-        "a.json", "b.md"]
+    assert (
+        a.read_text() == "{}"
+        and b.read_bytes() == b"old"
+        and sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.md"]
+    )
 
 
 DS_SETTINGS = dict(image_height=48, image_width=64, n_points=32)
@@ -363,17 +434,50 @@ def _collect_config(root: Path, episodes: int, **kw):
     from lerobot_bavo.datasets import schema as S
     from lerobot_bavo.datasets.collect import CollectConfig
 
-    base = dict(task="cube_handoff", condition="stage", episodes=episodes, repo_id=DS_REPO, root=root, workers=0,
-                commit_every=2, settings=S.ObservationSettings(**DS_SETTINGS), episode_length=30,
-                keep_failures=True, progress=False)
+    base = dict(
+        task="cube_handoff",
+        condition="stage",
+        episodes=episodes,
+        repo_id=DS_REPO,
+        root=root,
+        workers=0,
+        commit_every=2,
+        settings=S.ObservationSettings(**DS_SETTINGS),
+        episode_length=30,
+        keep_failures=True,
+        progress=False,
+    )
     base.update(kw)
     return CollectConfig(**base)
 
 
 def _collect_args(root: Path, episodes: int) -> list[str]:
-    return ["--task", "cube_handoff", "--condition", "stage", "--episodes", str(episodes), "--repo-id", DS_REPO,
-            "--root", str(root), "--workers", "0", "--commit-every", "2", "--image-height", "48", "--image-width",
-            "64", "--n-points", "32", "--episode-length", "30", "--keep-failures", "--no-progress"]
+    return [
+        "--task",
+        "cube_handoff",
+        "--condition",
+        "stage",
+        "--episodes",
+        str(episodes),
+        "--repo-id",
+        DS_REPO,
+        "--root",
+        str(root),
+        "--workers",
+        "0",
+        "--commit-every",
+        "2",
+        "--image-height",
+        "48",
+        "--image-width",
+        "64",
+        "--n-points",
+        "32",
+        "--episode-length",
+        "30",
+        "--keep-failures",
+        "--no-progress",
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -394,8 +498,8 @@ def _files(root: Path) -> dict[str, bytes]:
 
 
 def test_every_dataset_file_gets_the_usual_mode(dataset_root):
-    """Before: the mp4 that holds two episodes (LeRobot builds it in a NamedTemporaryFile) was 0600, every other
-    file 0644."""
+    """Before: the mp4 that holds two episodes (LeRobot builds it in a NamedTemporaryFile) was 0600, every
+    other file 0644."""
     from lerobot_bavo.runtime.files import default_file_mode
 
     modes = {str(p.relative_to(dataset_root)): p.stat().st_mode & 0o777 for p in dataset_root.rglob("*")
@@ -404,10 +508,12 @@ def test_every_dataset_file_gets_the_usual_mode(dataset_root):
     assert set(modes.values()) == {default_file_mode()}, modes
 
 
-def test_resume_without_meta_episodes_is_refused_and_never_reaches_the_hub(dataset_root, tmp_path, monkeypatch,
-                                                                         capsys):
-    """Before: LeRobot, finding no meta/episodes, fetched meta/ from the Hub repo named by --repo-id into the local
-    folder. Now bavo-collect refuses before LeRobot opens the dataset, naming the folder; nothing is changed."""
+def test_resume_without_meta_episodes_is_refused_and_never_reaches_the_hub(
+    dataset_root, tmp_path, monkeypatch, capsys
+):
+    """Before: LeRobot, finding no meta/episodes, fetched meta/ from the Hub repo named by --repo-id into the
+    local folder. Now bavo-collect refuses before LeRobot opens the dataset, naming the folder; nothing is
+    changed."""
     import huggingface_hub
     import lerobot.datasets.dataset_metadata as dataset_metadata
 
@@ -435,8 +541,8 @@ def test_resume_without_meta_episodes_is_refused_and_never_reaches_the_hub(datas
 
 
 def _corrupt_parquet_page(path: Path) -> None:
-    """Overwrite the header of the first data page of one column chunk: the footer (all the old check read) stays
-    valid, reading the column fails."""
+    """Overwrite the header of the first data page of one column chunk: the footer (all the old check read)
+    stays valid, reading the column fails."""
     import pyarrow.parquet as pq
 
     meta = pq.ParquetFile(path).metadata
@@ -450,10 +556,10 @@ def _corrupt_parquet_page(path: Path) -> None:
 
 @pytest.mark.parametrize("damage", ["truncated_mp4", "corrupt_parquet"])
 def test_resume_and_the_views_builder_refuse_a_damaged_committed_file(dataset_root, tmp_path, damage, capsys):
-    """Before: a truncated mp4 (it still opens: LeRobot writes the index first) or a parquet file with a damaged
-    page (its footer still reads) was kept by a resumed collection and copied by the views builder, both exit 0;
-    training failed on it. Now both refuse, naming the file, and change nothing; with the file restored the
-    collection resumes."""
+    """Before: a truncated mp4 (it still opens: LeRobot writes the index first) or a parquet file with a
+    damaged page (its footer still reads) was kept by a resumed collection and copied by the views builder,
+    both exit 0; training failed on it. Now both refuse, naming the file, and change nothing; with the file
+    restored the collection resumes."""
     import av
 
     from lerobot_bavo.datasets.collect import main as collect_main

@@ -48,40 +48,55 @@ IDENT = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
 
 
 # ============================================================================ pure checks
-@pytest.mark.parametrize("text,field", [
-    ("[1, 2]", "must be a JSON object, got a list"),
-    ("5", "must be a JSON object, got a number"),
-    ("null", "must be a JSON object, got null"),
-    ('"input"', "must be a JSON object, got a string"),
-    ("{", "not valid JSON"),
-    ("[" * 30_000 + "]" * 30_000, "not valid JSON"),  # nested too deeply for the parser
-    ('{"type": "input", "seq": 1e400}', "'seq' must be an integer"),
-    ('{"type": "input", "seq": NaN}', "'seq' must be an integer"),
-    ('{"type": "input", "seq": -1}', "'seq' must be in [0,"),
-    ('{"type": "input", "seq": 9007199254740993}', "'seq' must be in [0,"),
-    ('{"type": "input", "seq": true}', "'seq' must be an integer"),
-    ('{"type": "shell"}', "'type' must be 'input' or 'cmd'"),
-    ('{"seq": 3}', "'type' must be 'input' or 'cmd', got null"),
-    ('{"type": "cmd", "cmd": "rm"}', "'cmd' must be one of"),
-    ('{"type": "input", "keys": "w"}', "'keys' must be a list"),
-    ('{"type": "input", "keys": ["w", "ctrl"]}', "keys[1] is not a known key"),
-    ('{"type": "input", "keys": [["w"]]}', "keys[0] is not a known key"),
-    ('{"type": "input", "taps": ["1"], "keys": ["w"], "x": 1}', "unknown field \"x\""),
-    ('{"type": "input", "taps": ' + json.dumps(["1"] * (MAX_KEYS + 1)) + "}", f"'taps' has {MAX_KEYS + 1} entries"),
-    ('{"type": "input", "keys": ["pad17"]}', "keys[0] is not a known key"),
-    ('{"type": "input", "pad": [0, 0, 2, 0]}', "pad[2] must be a finite number in [-1, 1]"),
-    ('{"type": "input", "pad": [0, 0, 0, 0, 0]}', "'pad' must be null or a list of at most 4"),
-    ('{"type": "input", "pad": [Infinity]}', "pad[0] must be a finite number"),
-    ('{"type": "input", "xr": {"head": "abc"}}', "xr.head must be null or [x, y, z, qx, qy, qz, qw]"),
-    ('{"type": "input", "xr": {"head": [0, 1, 0, 0, 0, 0, 0]}}', "xr.head: the quaternion's norm is 0"),
-    ('{"type": "input", "xr": {"left": [0, 1, 0, 0, 0, 0, 1e-9]}}', "xr.left: the quaternion's norm"),
-    ('{"type": "input", "xr": {"right": [0, NaN, 0, 0, 0, 0, 1]}}', "xr.right[1] must be a finite number"),
-    ('{"type": "input", "xr": {"right": [1e6, 0, 0, 0, 0, 0, 1]}}', "xr.right[0] must be a finite number in [-100"),
-    ('{"type": "input", "xr": {"right": [0, 0, 0, 0, 0, 0, 1, 5]}}', "xr.right must be null or"),
-    ('{"type": "input", "xr": {"right_trigger": 3}}', "xr.right_trigger must be a finite number in [0, 1]"),
-    ('{"type": "input", "xr": {"nose": [0, 0, 0, 0, 0, 0, 1]}}', "unknown field \"nose\" in 'xr'"),
-    ('{"type": "input", "xr": [1, 2]}', "'xr' must be null or an object"),
-])
+@pytest.mark.parametrize(
+    "text,field",
+    [
+        ("[1, 2]", "must be a JSON object, got a list"),
+        ("5", "must be a JSON object, got a number"),
+        ("null", "must be a JSON object, got null"),
+        ('"input"', "must be a JSON object, got a string"),
+        ("{", "not valid JSON"),
+        ("[" * 30_000 + "]" * 30_000, "not valid JSON"),  # nested too deeply for the parser
+        ('{"type": "input", "seq": 1e400}', "'seq' must be an integer"),
+        ('{"type": "input", "seq": NaN}', "'seq' must be an integer"),
+        ('{"type": "input", "seq": -1}', "'seq' must be in [0,"),
+        ('{"type": "input", "seq": 9007199254740993}', "'seq' must be in [0,"),
+        ('{"type": "input", "seq": true}', "'seq' must be an integer"),
+        ('{"type": "shell"}', "'type' must be 'input' or 'cmd'"),
+        ('{"seq": 3}', "'type' must be 'input' or 'cmd', got null"),
+        ('{"type": "cmd", "cmd": "rm"}', "'cmd' must be one of"),
+        ('{"type": "input", "keys": "w"}', "'keys' must be a list"),
+        ('{"type": "input", "keys": ["w", "ctrl"]}', "keys[1] is not a known key"),
+        ('{"type": "input", "keys": [["w"]]}', "keys[0] is not a known key"),
+        ('{"type": "input", "taps": ["1"], "keys": ["w"], "x": 1}', "unknown field \"x\""),
+        (
+            '{"type": "input", "taps": ' + json.dumps(["1"] * (MAX_KEYS + 1)) + "}",
+            f"'taps' has {MAX_KEYS + 1} entries",
+        ),
+        ('{"type": "input", "keys": ["pad17"]}', "keys[0] is not a known key"),
+        ('{"type": "input", "pad": [0, 0, 2, 0]}', "pad[2] must be a finite number in [-1, 1]"),
+        ('{"type": "input", "pad": [0, 0, 0, 0, 0]}', "'pad' must be null or a list of at most 4"),
+        ('{"type": "input", "pad": [Infinity]}', "pad[0] must be a finite number"),
+        ('{"type": "input", "xr": {"head": "abc"}}', "xr.head must be null or [x, y, z, qx, qy, qz, qw]"),
+        ('{"type": "input", "xr": {"head": [0, 1, 0, 0, 0, 0, 0]}}', "xr.head: the quaternion's norm is 0"),
+        ('{"type": "input", "xr": {"left": [0, 1, 0, 0, 0, 0, 1e-9]}}', "xr.left: the quaternion's norm"),
+        (
+            '{"type": "input", "xr": {"right": [0, NaN, 0, 0, 0, 0, 1]}}',
+            "xr.right[1] must be a finite number",
+        ),
+        (
+            '{"type": "input", "xr": {"right": [1e6, 0, 0, 0, 0, 0, 1]}}',
+            "xr.right[0] must be a finite number in [-100",
+        ),
+        ('{"type": "input", "xr": {"right": [0, 0, 0, 0, 0, 0, 1, 5]}}', "xr.right must be null or"),
+        (
+            '{"type": "input", "xr": {"right_trigger": 3}}',
+            "xr.right_trigger must be a finite number in [0, 1]",
+        ),
+        ('{"type": "input", "xr": {"nose": [0, 0, 0, 0, 0, 0, 1]}}', "unknown field \"nose\" in 'xr'"),
+        ('{"type": "input", "xr": [1, 2]}', "'xr' must be null or an object"),
+    ],
+)
 def test_parse_message_rejects_each_bad_field_by_name(text, field):
     with pytest.raises(MessageError) as e:
         parse_message(text)
@@ -91,12 +106,23 @@ def test_parse_message_rejects_each_bad_field_by_name(text, field):
 
 def test_parse_message_returns_small_typed_values():
     assert parse_message('{"type": "cmd", "cmd": "save"}') == CommandMessage("save")
-    m = parse_message('{"type": "input", "seq": 7, "keys": ["W", "shift"], "taps": [" ", "pad3"], "pad": null}')
+    m = parse_message(
+        '{"type": "input", "seq": 7, "keys": ["W", "shift"], "taps": [" ", "pad3"], "pad": null}'
+    )
     assert m == InputMessage(seq=7, keys=("w", "shift"), taps=(" ", "pad3"), pad=None, xr=UNSET)
-    m = parse_message(json.dumps({"type": "input", "seq": 1, "keys": [],
-                                  "xr": {"head": [0, 1.6, 0, 0, 0, 0, 1.2], "left": None, "right_trigger": 0.5}}))
+    m = parse_message(
+        json.dumps(
+            {
+                "type": "input",
+                "seq": 1,
+                "keys": [],
+                "xr": {"head": [0, 1.6, 0, 0, 0, 0, 1.2], "left": None, "right_trigger": 0.5},
+            }
+        )
+    )
     assert m.keys == () and m.pad is UNSET
-    assert m.xr == {"head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0], "left": None, "right_trigger": 0.5}  # normalised
+    # normalised
+    assert m.xr == {"head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0], "left": None, "right_trigger": 0.5}
     with pytest.raises(MessageError, match=f"at most {MAX_MESSAGE_BYTES}"):
         parse_message(json.dumps({"type": "input", "keys": ["w"] * 20_000}))
 
@@ -106,9 +132,11 @@ def test_access_policy_checks_host_origin_and_token():
     ok = dict(host="127.0.0.1:8765", origin="http://127.0.0.1:8765", token="tok", need_token=True)
     assert p.refusal(**ok) is None
     assert p.refusal(**dict(ok, host="localhost:8765", origin="http://localhost:8765")) is None
-    assert p.refusal(**dict(ok, host="localhost:8765", origin="http://127.0.0.1:8765")) is None  # loopback names
+    # loopback names
+    assert p.refusal(**dict(ok, host="localhost:8765", origin="http://127.0.0.1:8765")) is None
     assert p.refusal(**dict(ok, host="[::1]:8765", origin="http://[::1]:8765")) is None
-    assert p.refusal(**dict(ok, origin=None)) is None  # not a browser page (browsers always send Origin on ws)
+    # not a browser page (browsers always send Origin on ws)
+    assert p.refusal(**dict(ok, origin=None)) is None
     assert p.refusal(**dict(ok, token=None, need_token=False)) is None  # /static: header checks only
     cases = {
         "does not name this server": [dict(host="evil.example:8765"), dict(host="127.0.0.1:9999"),
@@ -252,8 +280,10 @@ async def start_episode(page, live) -> None:
     session = live.session
     assert session.state == "idle", session.state
     await page.send({"type": "cmd", "cmd": "start"})
-    await until(lambda: session.state == "running" and session.agent is not None and len(session.agent.inputs) > 2,
-                what="a running episode")
+    await until(
+        lambda: session.state == "running" and session.agent is not None and len(session.agent.inputs) > 2,
+        what="a running episode",
+    )
 
 
 async def stop_and_save(page, live) -> dict:
@@ -276,7 +306,8 @@ def right_target(live) -> np.ndarray:
     return live.session.agent.controller.arms["right"].pos.copy()
 
 
-# ============================================================================ 1. other sites, rebinding, no token
+# ============================================================================ 1. other sites, rebinding, no
+# token
 def test_other_sites_rebinding_and_missing_token_are_refused_and_the_episode_survives(live):
     """A page on another site or a rebinding domain name cannot connect (403 with the reason) while an
     ended episode waits to be saved; the operator's page then saves it."""
@@ -289,7 +320,9 @@ def test_other_sites_rebinding_and_missing_token_are_refused_and_the_episode_sur
         if url.startswith(live.ws_url.replace("ws://", "http://")):  # and the websocket upgrade itself
             headers = dict(kw.get("headers", {}))
             with pytest.raises(aiohttp.WSServerHandshakeError) as e:
-                await http.ws_connect(url.replace("http://", "ws://"), headers=headers, params=kw.get("params"))
+                await http.ws_connect(
+                    url.replace("http://", "ws://"), headers=headers, params=kw.get("params")
+                )
             assert e.value.status == 403
 
     async def scenario():
@@ -315,7 +348,9 @@ def test_other_sites_rebinding_and_missing_token_are_refused_and_the_episode_sur
             await refused(http, live.base + "/", "no token")
             await refused(http, live.base + "/favicon.ico", "no token")  # any other path, too
             await refused(http, live.url, "does not name this server", headers={"Host": host_evil})
-            await refused(http, live.base + "/static/app.js", "does not name this server", headers={"Host": host_evil})
+            await refused(
+                http, live.base + "/static/app.js", "does not name this server", headers={"Host": host_evil}
+            )
             await refused(http, live.base + "/static/app.js", "is not this server's page",
                           headers={"Origin": "http://evil.example"})
             # the operator's own requests still work: the page, its script, a second page by `localhost`
@@ -350,8 +385,14 @@ BAD_MESSAGES = [
     ("null", "must be a JSON object"),
     ('{"type": "input", "seq": 1e400}', "'seq' must be an integer"),
     ({"type": "input", "seq": 2, "xr": {"head": "abc"}}, "xr.head must be null or"),
-    ({"type": "input", "seq": 3, "keys": [], "xr": {"head": [0, 1.6, 0, 0, 0, 0, 0]}}, "quaternion's norm is 0"),
-    ({"type": "input", "seq": 4, "keys": ["w"], "pad": [0, 0, float("nan"), 0]}, "pad[2] must be a finite number"),
+    (
+        {"type": "input", "seq": 3, "keys": [], "xr": {"head": [0, 1.6, 0, 0, 0, 0, 0]}},
+        "quaternion's norm is 0",
+    ),
+    (
+        {"type": "input", "seq": 4, "keys": ["w"], "pad": [0, 0, float("nan"), 0]},
+        "pad[2] must be a finite number",
+    ),
     ({"type": "input", "seq": 5, "keys": ["w"] * 33}, "'keys' has 33 entries"),
     ({"type": "input", "seq": 6, "taps": ["1", "exec"]}, "taps[1] is not a known key"),
     ({"type": "cmd", "cmd": "format"}, "'cmd' must be one of"),
@@ -373,15 +414,21 @@ def test_bad_messages_are_answered_and_the_episode_goes_on(live):
             before = right_target(live)
             for msg, reason in BAD_MESSAGES:
                 error = await page.error_for(msg)
-                assert reason in error, (msg if isinstance(msg, str) else json.dumps(msg))[:80] + " -> " + error
+                assert reason in error, (
+                    (msg if isinstance(msg, str) else json.dumps(msg))[:80] + " -> " + error
+                )
             await page.ws.send_bytes(b"\x00\x01")
-            await until(lambda: "binary messages are not accepted" in " ".join(page.errors()), what="binary refusal")
+            await until(
+                lambda: "binary messages are not accepted" in " ".join(page.errors()), what="binary refusal"
+            )
             assert session.state == "running" and session.is_alive() and session.error is None
             np.testing.assert_array_equal(right_target(live), before)  # no bad message moved anything
             assert not session.agent.failed_ticks
             # the service still works: a valid input moves the right arm's target along +y
             await page.send({"type": "input", "seq": 7, "keys": ["w"], "taps": []})
-            await until(lambda: right_target(live)[1] - before[1] > 0.02, what="the arm moving on a valid input")
+            await until(
+                lambda: right_target(live)[1] - before[1] > 0.02, what="the arm moving on a valid input"
+            )
             await page.send({"type": "input", "seq": 8, "keys": [], "taps": []})
             entry = await stop_and_save(page, live)
             await page.close()
@@ -407,7 +454,9 @@ def test_an_oversized_message_closes_only_its_own_connection(live):
             assert not watcher.ws.closed
             await until(lambda: watcher.texts, what="the watcher's status")
             fresh = await Page.open(http, live)  # and a new page connects as usual
-            await until(lambda: fresh.texts and fresh.texts[0]["type"] == "status", what="a new page's status")
+            await until(
+                lambda: fresh.texts and fresh.texts[0]["type"] == "status", what="a new page's status"
+            )
             await fresh.close()
             await watcher.close()
 
@@ -427,7 +476,9 @@ def test_a_page_that_goes_away_lets_go_of_its_keys_and_the_episode_pauses(live):
             page = await Page.open(http, live)
             await start_episode(page, live)
             await page.send({"type": "input", "seq": 1, "keys": ["w", "r"], "taps": ["2"]})
-            await until(lambda: sum(1 for t in session.agent.inputs if t["keys"]) >= 5, what="ticks with held keys")
+            await until(
+                lambda: sum(1 for t in session.agent.inputs if t["keys"]) >= 5, what="ticks with held keys"
+            )
             await page.close()
             await until(lambda: session.state == "paused", 30, what="the pause")
             assert session.input.keys == set() and session.input.pad is None and session.input.xr is None
@@ -449,7 +500,9 @@ def test_a_page_that_goes_away_lets_go_of_its_keys_and_the_episode_pauses(live):
             await second.close()
             await until(lambda: session.input.keys == set(), what="the second page's keys released")
             resumed = len(session.agent.inputs)
-            await until(lambda: len(session.agent.inputs) > resumed + 5, what="ticks after the second page left")
+            await until(
+                lambda: len(session.agent.inputs) > resumed + 5, what="ticks after the second page left"
+            )
             assert session.state == "running"  # the first page is still there: no pause
             entry = await stop_and_save(page, live)
             await page.close()
@@ -527,7 +580,9 @@ def test_a_failing_tick_or_save_keeps_the_thread_and_the_episode(live, monkeypat
             page = await Page.open(http, live)
             await start_episode(page, live)
             await page.send({"type": "input", "seq": 1, "keys": ["t"], "taps": []})
-            await until(lambda: any("injected controller fault" in e for e in page.errors()), what="the tick error")
+            await until(
+                lambda: any("injected controller fault" in e for e in page.errors()), what="the tick error"
+            )
             await page.send({"type": "input", "seq": 2, "keys": [], "taps": []})
             await until(lambda: session.agent.inputs[-1]["keys"] == [], what="the next input in effect")
             failed = list(session.agent.failed_ticks)
@@ -542,9 +597,15 @@ def test_a_failing_tick_or_save_keeps_the_thread_and_the_episode(live, monkeypat
             await page.send({"type": "cmd", "cmd": "save"})
             await until(lambda: any("No space left" in e for e in page.errors()), 60, what="the save error")
             await until(lambda: session.state == "ended", what="the episode kept")
-            assert session.pending is not None and session.pending[0].length == length and len(session.saved) == n
+            assert (
+                session.pending is not None
+                and session.pending[0].length == length
+                and len(session.saved) == n
+            )
             await page.send({"type": "cmd", "cmd": "save"})  # try again: it is written
-            await until(lambda: len(session.saved) == n + 1 and session.state == "idle", 120, what="the second save")
+            await until(
+                lambda: len(session.saved) == n + 1 and session.state == "idle", 120, what="the second save"
+            )
             await page.close()
             return failed, length
 
@@ -560,10 +621,32 @@ def test_cli_prints_the_address_with_its_token_and_refuses_requests_without_it(t
     """`bavo-teleop` prints http://127.0.0.1:<port>/?token=<token>; that address serves the page, the
     same address without the token (or with another run's) gets 403 with the reason."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "lerobot_bavo.teleop", "--task", "cube_handoff", "--repo-id", REPO,
-         "--root", str(tmp_path / "human"), "--port", "0", "--image-height", "48", "--image-width", "64",
-         "--n-points", "32", "--third-person-height", "48"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        [
+            sys.executable,
+            "-m",
+            "lerobot_bavo.teleop",
+            "--task",
+            "cube_handoff",
+            "--repo-id",
+            REPO,
+            "--root",
+            str(tmp_path / "human"),
+            "--port",
+            "0",
+            "--image-height",
+            "48",
+            "--image-width",
+            "64",
+            "--n-points",
+            "32",
+            "--third-person-height",
+            "48",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     lines = []
     try:
         for line in proc.stdout:

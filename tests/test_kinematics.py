@@ -258,7 +258,9 @@ def test_rendered_depth_and_segmentation_match_table_plane(render_setup):
         if fwd[2] < -1e-3:
             t = (top - p[2]) / fwd[2]
             hit = p + t * fwd
-            inside = abs(hit[0] - tg_pos[0]) < tg_size[0] - 0.02 and abs(hit[1] - tg_pos[1]) < tg_size[1] - 0.02
+            inside = (
+                abs(hit[0] - tg_pos[0]) < tg_size[0] - 0.02 and abs(hit[1] - tg_pos[1]) < tg_size[1] - 0.02
+            )
             if inside and seg[60, 80] == table:
                 assert abs(depth[60, 80] - t) < 0.005, (q, depth[60, 80], t)
                 checked += 1

@@ -94,7 +94,13 @@ def test_config_rejects_bad_values(kwargs, match):
 
 
 def test_config_accepts_every_benchmark_task_and_condition():
-    assert list(TASKS)[:5] == ["cube_handoff", "block_stacking", "drawer_stowing", "slide_retrieval", "dustpan_sweeping"]
+    assert list(TASKS)[:5] == [
+        "cube_handoff",
+        "block_stacking",
+        "drawer_stowing",
+        "slide_retrieval",
+        "dustpan_sweeping",
+    ]
     assert list(CONDITIONS)[:3] == ["clean", "stage", "random"]
     for task in TASKS:
         for condition in CONDITIONS:
@@ -159,7 +165,9 @@ def test_create_envs_step_and_preprocess():
 
 # ----------------------------------------------------------------------------- lerobot-eval
 def _load_make_random_policy():
-    spec = importlib.util.spec_from_file_location("make_random_policy", REPO / "scripts" / "make_random_policy.py")
+    spec = importlib.util.spec_from_file_location(
+        "make_random_policy", REPO / "scripts" / "make_random_policy.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -180,13 +188,26 @@ def test_lerobot_eval_end_to_end(tmp_path):
     cmd = [str(cli)] if cli.exists() else [sys.executable, "-m", "lerobot.scripts.lerobot_eval"]
     out_dir = tmp_path / "eval"
     cmd += [
-        f"--policy.path={ckpt}", "--policy.device=cpu", "--env.type=bavo", "--env.task=cube_handoff",
-        "--env.episode_length=10", f"--env.image_height={SMALL['image_height']}",
-        f"--env.image_width={SMALL['image_width']}", f"--env.n_points={SMALL['n_points']}",
-        "--eval.n_episodes=1", "--eval.batch_size=1", "--eval.use_async_envs=false", f"--output_dir={out_dir}",
+        f"--policy.path={ckpt}",
+        "--policy.device=cpu",
+        "--env.type=bavo",
+        "--env.task=cube_handoff",
+        "--env.episode_length=10",
+        f"--env.image_height={SMALL['image_height']}",
+        f"--env.image_width={SMALL['image_width']}",
+        f"--env.n_points={SMALL['n_points']}",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+        "--eval.use_async_envs=false",
+        f"--output_dir={out_dir}",
     ]
-    env = dict(os.environ, HF_HUB_OFFLINE="1", HF_HOME=str(tmp_path / "hf"), MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"),
-               OPENBLAS_NUM_THREADS="1")
+    env = dict(
+        os.environ,
+        HF_HUB_OFFLINE="1",
+        HF_HOME=str(tmp_path / "hf"),
+        MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"),
+        OPENBLAS_NUM_THREADS="1",
+    )
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 

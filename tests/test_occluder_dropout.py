@@ -27,7 +27,8 @@ def test_points_on_the_panel_are_those_inside_its_box_plus_the_margin():
         centre,                                         # centre: on it
         centre + width * (hw - 1e-3) + height * 0.05,   # near the rim, inside the margin: on it
         centre + width * (hw + 1e-3),                   # just past the rim: not
-        centre - normal * 0.012,                        # camera-facing face side, within thickness + margin: on it
+        # camera-facing face side, within thickness + margin: on it
+        centre - normal * 0.012,
         centre + normal * 0.02,                         # 2 cm behind: not
         centre + height * 0.2,                          # far above: not
     ])
@@ -84,14 +85,21 @@ def test_policy_reads_the_panel_free_points_in_training_only():
     n, m = 8, 4
     inputs = {"observation.point_cloud": PolicyFeature(FeatureType.STATE, (n * 6,)),
               "observation.state": PolicyFeature(FeatureType.STATE, (21,))}
-    cfg = ManiFlowConfig(input_features=inputs, output_features={"action": PolicyFeature(FeatureType.ACTION, (21,))},
-                         preset="cpu_fast", device="cpu", points_per_step=m, occluder_dropout=1.0)
+    cfg = ManiFlowConfig(
+        input_features=inputs,
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (21,))},
+        preset="cpu_fast",
+        device="cpu",
+        points_per_step=m,
+        occluder_dropout=1.0,
+    )
     policy = ManiFlowPolicy(cfg)
     cloud = torch.arange(2 * 2 * n * 6, dtype=torch.float32).reshape(2, 2, n * 6)
     labels = torch.zeros(2, 2, n)
     labels[:, :, :3] = 1  # the first three points are the panel's
     batch = {"observation.point_cloud": cloud, TEACHER_OCCLUDER: labels}
-    seen = policy.training_batch(batch)["observation.point_cloud"].reshape(2, 2, n, 6)[:, :, :m]  # what it reads
+    # what it reads
+    seen = policy.training_batch(batch)["observation.point_cloud"].reshape(2, 2, n, 6)[:, :, :m]
     assert torch.equal(seen, cloud.reshape(2, 2, n, 6)[:, :, 3:3 + m])  # points 3..6: the scene's, FPS order
     policy.eval()
     assert policy.training_batch(batch) is batch  # inference never reorders

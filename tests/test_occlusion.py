@@ -253,7 +253,9 @@ def test_random_schedule_through_env(reset_records, random_env):
     for r in reset_records[:3]:
         _, info = random_env.reset(seed=r["seed"])
         assert info["occlusion"]["triggers"] == r["occ"]["triggers"]
-        np.testing.assert_array_equal(info["occlusion"]["event"]["occluder_pos"], r["occ"]["event"]["occluder_pos"])
+        np.testing.assert_array_equal(
+            info["occlusion"]["event"]["occluder_pos"], r["occ"]["event"]["occluder_pos"]
+        )
     assert len({tuple(r["occ"]["triggers"]) for r in reset_records}) > N_SEEDS // 2
 
 
@@ -409,7 +411,9 @@ def test_panel_hides_hand_constructed():
     assert not panel_hides(px, far, K, T, -centre, rot, half).any()
     # wider half extent along x only
     got = panel_hides(px, far, K, T, centre, rot, (0.35, 0.1))
-    np.testing.assert_array_equal(got, inside | np.array([False, False, False, False, True, False, True, False]))
+    np.testing.assert_array_equal(
+        got, inside | np.array([False, False, False, False, True, False, True, False])
+    )
     # the same scene seen by a translated camera: shift everything by t
     t = np.array([0.3, -0.2, 0.5])
     T2 = np.eye(4)

@@ -1,4 +1,5 @@
-"""ManiFlow and A-FAR policies on synthetic batches (tiny configs; the whole file runs in well under a minute)."""
+"""ManiFlow and A-FAR policies on synthetic batches (tiny configs; the whole file runs in well under a
+minute)."""
 
 from __future__ import annotations
 
@@ -61,12 +62,16 @@ def features(with_teacher: bool = False) -> tuple[dict, dict]:
 
 def make_maniflow(**overrides) -> ManiFlowPolicy:
     inputs, outputs = features()
-    return ManiFlowPolicy(ManiFlowConfig(input_features=inputs, output_features=outputs, **{**TINY, **overrides}))
+    return ManiFlowPolicy(
+        ManiFlowConfig(input_features=inputs, output_features=outputs, **{**TINY, **overrides})
+    )
 
 
 def make_afar(**overrides) -> AfarPolicy:
     inputs, outputs = features()
-    return AfarPolicy(AfarConfig(input_features=inputs, output_features=outputs, **{**TINY_AFAR, **overrides}))
+    return AfarPolicy(
+        AfarConfig(input_features=inputs, output_features=outputs, **{**TINY_AFAR, **overrides})
+    )
 
 
 def synthetic_batch(b: int = 8, to: int = 2, seed: int = 0, teacher: bool = True) -> dict[str, torch.Tensor]:
@@ -84,11 +89,15 @@ def synthetic_batch(b: int = 8, to: int = 2, seed: int = 0, teacher: bool = True
 
 def observation(seed: int = 1) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
-    return {PC: torch.rand(1, N_POINTS, 6, generator=g) * 2 - 1, STATE: torch.rand(1, STATE_DIM, generator=g) * 2 - 1}
+    return {
+        PC: torch.rand(1, N_POINTS, 6, generator=g) * 2 - 1,
+        STATE: torch.rand(1, STATE_DIM, generator=g) * 2 - 1,
+    }
 
 
 def randomize_zero_init(policy: ManiFlowPolicy, seed: int = 0) -> None:
-    """Give the zero-initialised DiT layers random values (else every velocity is 0 and all policies agree)."""
+    """Give the zero-initialised DiT layers random values (else every velocity is 0 and all policies
+    agree)."""
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for model in (policy.model, policy.ema_model):
@@ -97,7 +106,8 @@ def randomize_zero_init(policy: ManiFlowPolicy, seed: int = 0) -> None:
                     p.copy_(0.2 * torch.randn(p.shape, generator=g))
 
 
-# (a) -----------------------------------------------------------------------------------------------------------
+# (a)
+# -----------------------------------------------------------------------------------------------------------
 
 
 def fixed_seed_loss(policy, batch, seed: int = 123, reps: int = 4) -> float:
@@ -141,7 +151,8 @@ def test_overfits_one_batch(make):
         assert all(isinstance(v, (float, int)) for v in info.values())
 
 
-# (b) -----------------------------------------------------------------------------------------------------------
+# (b)
+# -----------------------------------------------------------------------------------------------------------
 
 
 def test_afar_equals_maniflow_at_init():
@@ -175,7 +186,8 @@ def test_afar_equals_maniflow_at_init():
     assert not torch.allclose(afar.select_action(dict(obs), noise=noise), a_m, atol=1e-4)
 
 
-# (c) -----------------------------------------------------------------------------------------------------------
+# (c)
+# -----------------------------------------------------------------------------------------------------------
 
 
 def test_relational_loss_zero_iff_relations_match():
@@ -215,7 +227,8 @@ def test_afar_relational_loss_masks_invalid_samples_and_reads_both_layouts():
     assert policy.relational_loss(dict(batch, **{VALID: torch.zeros(4)}), aux)[2] == 0
 
 
-# (d) -----------------------------------------------------------------------------------------------------------
+# (d)
+# -----------------------------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("cls_cfg", [(ManiFlowPolicy, ManiFlowConfig), (AfarPolicy, AfarConfig)],
@@ -310,7 +323,8 @@ def test_afar_ablations_train(flags):
     assert policy.select_action(observation()).shape == (1, ACTION_DIM)
 
 
-# (e) -----------------------------------------------------------------------------------------------------------
+# (e)
+# -----------------------------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("make", [make_maniflow, make_afar], ids=["maniflow", "afar"])
@@ -339,7 +353,8 @@ def test_save_and_load_pretrained(make, tmp_path):
     torch.testing.assert_close(a1, a2, rtol=0, atol=0)
 
 
-# (f) -----------------------------------------------------------------------------------------------------------
+# (f)
+# -----------------------------------------------------------------------------------------------------------
 
 
 def test_ema_update_follows_decay_schedule():
@@ -406,7 +421,8 @@ def test_inference_modulation_cache_is_exact_and_invalidated():
                 torch.testing.assert_close(policy.generate_actions(batch, noise=noise), reference(steps))
         with torch.no_grad():  # an in-place weight change is explicit: the changer invalidates the cache
             model.dit.blocks[0].adaln[-1].bias.add_(0.3)
-        assert not torch.allclose(policy.generate_actions(batch, noise=noise), reference(1))  # stale until told
+        # stale until told
+        assert not torch.allclose(policy.generate_actions(batch, noise=noise), reference(1))
         policy.invalidate_modulation_cache()
         torch.testing.assert_close(policy.generate_actions(batch, noise=noise), reference(1))
         # the policy's own weight changes invalidate it: EMA updates and loading weights
@@ -422,7 +438,8 @@ def test_inference_modulation_cache_is_exact_and_invalidated():
         torch.testing.assert_close(policy.generate_actions(batch, noise=noise), reference(1))
 
 
-# (g) -----------------------------------------------------------------------------------------------------------
+# (g)
+# -----------------------------------------------------------------------------------------------------------
 
 
 def synthetic_stats() -> dict[str, dict[str, torch.Tensor]]:
@@ -507,7 +524,9 @@ def test_bavo_flat_dataset_layout_and_env_layout(name):
 
     from lerobot_bavo.datasets import schema
 
-    ds_features = schema.build_features(schema.ObservationSettings(32, 32, n_points=N_POINTS), use_videos=True)
+    ds_features = schema.build_features(
+        schema.ObservationSettings(32, 32, n_points=N_POINTS), use_videos=True
+    )
     assert tuple(ds_features[PC]["shape"]) == (N_POINTS * 6,)
     g = torch.Generator().manual_seed(0)
     cloud = torch.rand(500, N_POINTS, 6, generator=g) * torch.tensor([1.0, 0.8, 0.6, 1, 1, 1])
@@ -558,15 +577,19 @@ def test_bavo_flat_dataset_layout_and_env_layout(name):
     assert a_env.shape == (1, ACTION_DIM)
 
 
-# (h) privileged-state mode -------------------------------------------------------------------------------------
+# (h) privileged-state mode
+# -------------------------------------------------------------------------------------
 
 ENV = "observation.environment_state"
 
 
 def test_privileged_state_maniflow_tokens_objects_trains_and_acts():
-    """With object poses instead of a point cloud, ManiFlow makes one token per object (7-d pose) and keeps the
-    DiT-X / flow objective; A-FAR refuses (its relations are point-aligned)."""
-    inputs = {ENV: PolicyFeature(FeatureType.ENV, (14,)), STATE: PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+    """With object poses instead of a point cloud, ManiFlow makes one token per object (7-d pose) and keeps
+    the DiT-X / flow objective; A-FAR refuses (its relations are point-aligned)."""
+    inputs = {
+        ENV: PolicyFeature(FeatureType.ENV, (14,)),
+        STATE: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
+    }
     outputs = {ACT: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
     cfg = ManiFlowConfig(input_features=dict(inputs), output_features=outputs, **TINY)
     assert (cfg.observation_key, cfg.num_points, cfg.token_channels) == (ENV, 2, 7)
@@ -574,7 +597,10 @@ def test_privileged_state_maniflow_tokens_objects_trains_and_acts():
     policy = ManiFlowPolicy(cfg)
     assert policy.model.point_encoder.mlp[0].in_features == 7
     g = torch.Generator().manual_seed(0)
-    batch = {ENV: torch.rand(8, 2, 14, generator=g) * 2 - 1, STATE: torch.rand(8, 2, STATE_DIM, generator=g) * 2 - 1}
+    batch = {
+        ENV: torch.rand(8, 2, 14, generator=g) * 2 - 1,
+        STATE: torch.rand(8, 2, STATE_DIM, generator=g) * 2 - 1,
+    }
     # the chunk depends on the object poses only: the model must read them to fit
     batch[ACT] = batch[ENV][:, -1, None, :].repeat(1, 16, 2)[..., :ACTION_DIM]
     start, end, _ = fit(policy, batch, 150)
@@ -591,8 +617,8 @@ def test_privileged_state_maniflow_tokens_objects_trains_and_acts():
 
 
 def test_point_cloud_stats_reduce_to_per_channel_whatever_the_layout():
-    """Element-wise (per-slot) stats, as LeRobot's tools rebuild them after an edit, normalise exactly like the
-    per-channel stats computed from all points; mean/std combine exactly for equal slot counts."""
+    """Element-wise (per-slot) stats, as LeRobot's tools rebuild them after an edit, normalise exactly like
+    the per-channel stats computed from all points; mean/std combine exactly for equal slot counts."""
     from lerobot_bavo.policies.maniflow.processor_maniflow import per_channel_point_stats
 
     g = torch.Generator().manual_seed(0)
@@ -605,7 +631,9 @@ def test_point_cloud_stats_reduce_to_per_channel_whatever_the_layout():
     torch.testing.assert_close(out["min"].reshape(N_POINTS, 6), flat.amin(0).expand(N_POINTS, 6))
     torch.testing.assert_close(out["max"].reshape(N_POINTS, 6), flat.amax(0).expand(N_POINTS, 6))
     torch.testing.assert_close(out["mean"].reshape(N_POINTS, 6), flat.mean(0).expand(N_POINTS, 6))
-    torch.testing.assert_close(out["std"].reshape(N_POINTS, 6), flat.std(0, unbiased=False).expand(N_POINTS, 6))
+    torch.testing.assert_close(
+        out["std"].reshape(N_POINTS, 6), flat.std(0, unbiased=False).expand(N_POINTS, 6)
+    )
     assert out["count"].tolist() == [50]
     # already-tiled stats are a fixed point
     again = per_channel_point_stats(out, N_POINTS, 6)
@@ -638,23 +666,29 @@ def test_points_per_step_reads_exactly_the_fps_prefix(make):
 
 
 def test_afar_fusion_gate_has_its_own_optimizer_group():
-    """gamma is optimised without weight decay at `fusion_gate_lr_scale` x lr; everything else as configured."""
+    """gamma is optimised without weight decay at `fusion_gate_lr_scale` x lr; everything else as
+    configured."""
     policy = make_afar(fusion_gate_lr_scale=10.0)
     groups = policy.get_optim_params()
     opt = policy.config.get_optimizer_preset().build(groups)
     gate_group = next(g for g in opt.param_groups if any(p is policy.model.fusion_gate for p in g["params"]))
-    assert gate_group["weight_decay"] == 0.0 and gate_group["lr"] == pytest.approx(10 * policy.config.optimizer_lr)
+    assert gate_group["weight_decay"] == 0.0 and gate_group["lr"] == pytest.approx(
+        10 * policy.config.optimizer_lr
+    )
     others = [g for g in opt.param_groups if g is not gate_group]
     assert len(others) == 1 and others[0]["weight_decay"] == policy.config.optimizer_weight_decay
     n_params = sum(p.numel() for g in opt.param_groups for p in g["params"])
     assert n_params == sum(p.numel() for p in policy.model.parameters())
-    assert AfarConfig(preset="paper").fusion_gate_lr_scale == 1.0 and AfarConfig(preset="cpu_fast").fusion_gate_lr_scale == 10.0
+    assert (
+        AfarConfig(preset="paper").fusion_gate_lr_scale == 1.0
+        and AfarConfig(preset="cpu_fast").fusion_gate_lr_scale == 10.0
+    )
 
 
 def test_gripper_dims_are_snapped_to_open_or_closed_and_nothing_else_changes():
-    """binary_action_dims (default: BAVO's grippers, 6 and 13) snaps each sampled normalised gripper command to
-    the nearer end of its range, -1 (closed) or +1 (open); every other dimension is the plain sample. Checked
-    against the same weights and noise with snapping off, and by hand on a small tensor."""
+    """binary_action_dims (default: BAVO's grippers, 6 and 13) snaps each sampled normalised gripper command
+    to the nearer end of its range, -1 (closed) or +1 (open); every other dimension is the plain sample.
+    Checked against the same weights and noise with snapping off, and by hand on a small tensor."""
     from lerobot_bavo.policies.maniflow.modeling_maniflow import snap_binary_dims
     from lerobot_bavo.sim.constants import GRIPPER_INDICES
 
@@ -685,7 +719,10 @@ def test_sampled_chunks_are_clipped_to_the_normalised_data_range():
     """A 1-2 step flow sample can leave [-1, 1]; with clip_actions (default) the chunk is clamped there, and
     without it the raw sample comes back unchanged. A large random init makes the raw sample overshoot."""
     torch.manual_seed(0)
-    clipped, raw = make_maniflow(binary_action_dims=()), make_maniflow(clip_actions=False, binary_action_dims=())
+    clipped, raw = (
+        make_maniflow(binary_action_dims=()),
+        make_maniflow(clip_actions=False, binary_action_dims=()),
+    )
     randomize_zero_init(clipped, seed=0)
     raw.load_state_dict(clipped.state_dict())
     for p in clipped.ema_model.parameters():

@@ -1,14 +1,14 @@
 """`bavo-eval --executor ray` (issue 15): the same results as the local executor, resume, a killed Ray worker
-retried with nothing lost or duplicated, a killed driver re-run doing only the unfinished episodes, and the local
-executor never importing Ray.
+retried with nothing lost or duplicated, a killed driver re-run doing only the unfinished episodes, and the
+local executor never importing Ray.
 
 The Ray tests start one private local Ray for the module (`ray.init(num_cpus=2)`, loopback only, no dashboard)
 and are skipped, with the reason, where Ray (the optional 'ray' extra) is not installed. Its workers get this
-checkout and this folder on PYTHONPATH (the environment Ray starts with), so they import the package under test
-and this module's fake episode. The fake episodes (`fake_job`: a short sleep, a fixed record) keep the resume and
-kill tests cheap: the write path, resume and lock are the real ones. The real comparison runs two scripted-expert
-episodes of Cube Handoff per executor (~20 s on 2 cores); the killed-driver test runs two `bavo-eval` commands,
-each starting its own private Ray (~35 s). About 65 s in all on 2 cores.
+checkout and this folder on PYTHONPATH (the environment Ray starts with), so they import the package under
+test and this module's fake episode. The fake episodes (`fake_job`: a short sleep, a fixed record) keep the
+resume and kill tests cheap: the write path, resume and lock are the real ones. The real comparison runs two
+scripted-expert episodes of Cube Handoff per executor (~20 s on 2 cores); the killed-driver test runs two
+`bavo-eval` commands, each starting its own private Ray (~35 s). About 65 s in all on 2 cores.
 """
 
 from __future__ import annotations
@@ -29,12 +29,15 @@ REPO = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent
 MARKS_ENV = "BAVO_TEST_RAY_MARKS"
 
-needs_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None,
-                               reason="Ray is not installed (the optional extra: pip install 'lerobot_env_bavo[ray]')")
+needs_ray = pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None,
+    reason="Ray is not installed (the optional extra: pip install 'lerobot_env_bavo[ray]')",
+)
 
 
 def fake_job(job: dict) -> dict:
-    """A fake episode run in a Ray worker: marks `<seed>.<pid>` in $BAVO_TEST_RAY_MARKS, sleeps, returns a record."""
+    """A fake episode run in a Ray worker: marks `<seed>.<pid>` in $BAVO_TEST_RAY_MARKS, sleeps, returns a
+    record."""
     marks = Path(os.environ[MARKS_ENV])
     (marks / f"{job['seed']}.{os.getpid()}").touch()
     time.sleep(0.4)
@@ -49,9 +52,15 @@ def start_local_ray(tmp_path_factory, marks_env: str):
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'lerobot_env_bavo[ray]')")
     marks = tmp_path_factory.mktemp("marks")
     saved = dict(os.environ)
-    os.environ.update({"PYTHONPATH": os.pathsep.join([str(REPO), str(HERE), os.environ.get("PYTHONPATH", "")]),
-                       marks_env: str(marks), "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
-                       "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+    os.environ.update(
+        {
+            "PYTHONPATH": os.pathsep.join([str(REPO), str(HERE), os.environ.get("PYTHONPATH", "")]),
+            marks_env: str(marks),
+            "OPENBLAS_NUM_THREADS": "1",
+            "OMP_NUM_THREADS": "1",
+            "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+        }
+    )
     try:  # the workers inherit the environment Ray starts with
         ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", logging_level="WARNING")
     finally:
@@ -133,7 +142,9 @@ def test_ray_resumes_like_local(local_ray, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv(MARKS_ENV, str(marks))  # for the in-process local run
     clear_marks(marks)
     out = tmp_path / "eval"
-    kw = dict(policy="expert", tasks=["cube_handoff"], conditions=["clean"], seed=1000, videos=0, output_dir=out)
+    kw = dict(
+        policy="expert", tasks=["cube_handoff"], conditions=["clean"], seed=1000, videos=0, output_dir=out
+    )
     cli.evaluate(**kw, episodes=3, executor="local")
     clear_marks(marks)
     results = cli.evaluate(**kw, episodes=6, executor="ray")
@@ -155,12 +166,14 @@ def test_a_killed_ray_worker_is_retried_and_nothing_is_lost_or_duplicated(local_
     victim = 1003
     killer, killed = start_killer(marks, victim)
     out = tmp_path / "eval"
-    results = cli.evaluate("expert", ["cube_handoff"], ["clean"], episodes=8, seed=1000, output_dir=out, videos=0,
-                           executor="ray")
+    results = cli.evaluate(
+        "expert", ["cube_handoff"], ["clean"], episodes=8, seed=1000, output_dir=out, videos=0, executor="ray"
+    )
     killer.join(timeout=5)
     assert killed, "the victim episode never started"
     started = marked_starts(marks)
-    assert len(started[victim]) == 2 and killed[0] in started[victim], started  # killed once, run again elsewhere
+    # killed once, run again elsewhere
+    assert len(started[victim]) == 2 and killed[0] in started[victim], started
     seeds = _log_seeds(out)
     assert sorted(seeds) == list(range(1000, 1008)), seeds  # none lost, none twice
     records = json.loads((out / "results.json").read_text())["cells"]["cube_handoff/clean"]["episodes"]
@@ -177,10 +190,13 @@ import sys
 sys.modules["ray"] = None  # as if Ray were not installed
 from lerobot_bavo.eval import cli, run
 def fake(job):
-    return {{"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True, "progress": 5}}
+    return {{"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True,
+             "progress": 5}}
 run.run_job = fake
-args = ["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean", "--episodes", "2", "--videos", "0"]
-cli.main(args + ["--output-dir", {str(tmp_path / "local")!r}, "--workers", "2"])  # an import of ray would fail
+args = ["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "clean", "--episodes", "2",
+        "--videos", "0"]
+# an import of ray would fail
+cli.main(args + ["--output-dir", {str(tmp_path / "local")!r}, "--workers", "2"])
 try:
     cli.main(args + ["--output-dir", {str(tmp_path / "ray")!r}, "--executor", "ray"])
 except SystemExit as e:
@@ -188,21 +204,28 @@ except SystemExit as e:
 """
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
                OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300
+    )
     assert proc.returncode == 0, proc.stderr
-    assert "EXIT: bavo-eval: --executor ray needs Ray, the optional 'ray' extra: pip install 'lerobot_env_bavo[ray]'" \
-        in proc.stdout, proc.stdout
+    assert (
+        "EXIT: bavo-eval: --executor ray needs Ray, the optional 'ray' extra: pip install "
+        "'lerobot_env_bavo[ray]'"
+        in proc.stdout
+    ), proc.stdout
     assert sorted(_log_seeds(tmp_path / "local")) == [1000, 1001]
     assert not (tmp_path / "ray").exists()
 
 
-# A bavo-eval on its own private Ray whose episodes are fake (1 s each; defined in __main__, so Ray ships them).
+# A bavo-eval on its own private Ray whose episodes are fake (1 s each; defined in __main__, so Ray ships
+# them).
 FAKE_RAY_EVAL = """
 import sys, time
 from lerobot_bavo.eval import cli, run
 def fake(job):
     time.sleep(1.0)
-    return {"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True, "progress": 5}
+    return {"task": job["task"], "condition": job["condition"], "seed": job["seed"], "success": True,
+            "progress": 5}
 run.run_job = fake
 cli.main(sys.argv[1:])
 """
@@ -210,11 +233,30 @@ cli.main(sys.argv[1:])
 
 @needs_ray
 def test_a_killed_driver_rerun_does_only_the_unfinished_episodes(tmp_path):
-    """kill -9 of `bavo-eval --executor ray` (its own private Ray) after a few episodes; the same command again
-    keeps those and runs the rest: every seed once."""
+    """kill -9 of `bavo-eval --executor ray` (its own private Ray) after a few episodes; the same command
+    again keeps those and runs the rest: every seed once."""
     out = tmp_path / "eval"
-    cmd = [sys.executable, "-c", FAKE_RAY_EVAL, "--policy", "expert", "--tasks", "cube_handoff", "--conditions",
-           "clean", "--episodes", "12", "--videos", "0", "--workers", "2", "--executor", "ray", "--output-dir", str(out)]
+    cmd = [
+        sys.executable,
+        "-c",
+        FAKE_RAY_EVAL,
+        "--policy",
+        "expert",
+        "--tasks",
+        "cube_handoff",
+        "--conditions",
+        "clean",
+        "--episodes",
+        "12",
+        "--videos",
+        "0",
+        "--workers",
+        "2",
+        "--executor",
+        "ray",
+        "--output-dir",
+        str(out),
+    ]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
                OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     env.pop("RAY_ADDRESS", None)
@@ -222,9 +264,15 @@ def test_a_killed_driver_rerun_does_only_the_unfinished_episodes(tmp_path):
     try:
         deadline = time.time() + 180
         log = out / "episodes.jsonl"
-        while time.time() < deadline and first.poll() is None and not (log.exists() and log.read_text().count("\n") >= 2):
+        while (
+            time.time() < deadline
+            and first.poll() is None
+            and not (log.exists() and log.read_text().count("\n") >= 2)
+        ):
             time.sleep(0.1)
-        assert first.poll() is None, f"bavo-eval ended before it could be killed: {first.communicate()[1][-2000:]}"
+        assert first.poll() is None, (
+            f"bavo-eval ended before it could be killed: {first.communicate()[1][-2000:]}"
+        )
         first.kill()
         first.wait(timeout=30)
     finally:
@@ -242,8 +290,9 @@ def test_a_killed_driver_rerun_does_only_the_unfinished_episodes(tmp_path):
 
 @needs_ray
 def test_a_private_rays_workers_run_at_normal_priority_and_import_no_pytorch(tmp_path):
-    """A private Ray started by `RayPool` runs its workers at nice 0 like a local pool (Ray's default, 15, lets
-    any other load starve the episodes) and with the package's light import (no PyTorch for an expert episode)."""
+    """A private Ray started by `RayPool` runs its workers at nice 0 like a local pool (Ray's default, 15,
+    lets any other load starve the episodes) and with the package's light import (no PyTorch for an expert
+    episode)."""
     code = (
         "import os, sys\n"
         "from lerobot_bavo.runtime.ray_pool import RayPool\n"

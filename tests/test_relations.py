@@ -55,7 +55,9 @@ def test_relation_matrix_hand_computed():
     eps = 1e-6
     torch.testing.assert_close(relation_matrix(SQUARE, SQUARE, eps=eps), SQUARE_DIST / (SQUARE_MEAN + eps))
     # Relations are scale- and translation-invariant when X = Y (up to eps).
-    torch.testing.assert_close(relation_matrix(3 * SQUARE + 7, 3 * SQUARE + 7, eps=0.0), SQUARE_DIST / SQUARE_MEAN)
+    torch.testing.assert_close(
+        relation_matrix(3 * SQUARE + 7, 3 * SQUARE + 7, eps=0.0), SQUARE_DIST / SQUARE_MEAN
+    )
     # Y gives the distances, X the scale.
     torch.testing.assert_close(relation_matrix(SQUARE, 2 * SQUARE, eps=0.0), SQUARE_DIST / (2 * SQUARE_MEAN))
 
@@ -75,7 +77,10 @@ def test_dynamics_weights_hand_computed():
     # a_i = 1/3 sum_{j != i} |dR_ij|; the common 1/(3 m) factor cancels in q:
     # a ~ [sqrt2, sqrt5-1, sqrt5-1, sqrt2 + 2(sqrt5-1)], sum ~ 2 sqrt2 + 4(sqrt5-1).
     total = 2 * S2 + 4 * (S5 - 1)
-    q = torch.tensor([4 * S2, 4 * (S5 - 1), 4 * (S5 - 1), 4 * (S2 + 2 * (S5 - 1))], dtype=torch.float64) / total
+    q = (
+        torch.tensor([4 * S2, 4 * (S5 - 1), 4 * (S5 - 1), 4 * (S2 + 2 * (S5 - 1))], dtype=torch.float64)
+        / total
+    )
     torch.testing.assert_close(q[3], torch.tensor(2.0, dtype=torch.float64))  # moving point: twice the mean
     b = 0.5 + 0.5 * q
     expected = torch.sqrt(b[:, None] * b[None, :])
@@ -142,7 +147,9 @@ def test_batch_matches_loop():
         loop_evo.append(le)
     torch.testing.assert_close(L_cur, torch.stack(loop_cur).mean())
     torch.testing.assert_close(L_evo, torch.stack(loop_evo).mean())
-    torch.testing.assert_close(weighted_l1(dR, w), torch.stack([weighted_l1(dR[b], w[b]) for b in range(B)]).mean())
+    torch.testing.assert_close(
+        weighted_l1(dR, w), torch.stack([weighted_l1(dR[b], w[b]) for b in range(B)]).mean()
+    )
 
 
 def test_student_relations_use_l2_normalised_tokens():

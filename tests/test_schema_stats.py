@@ -1,5 +1,5 @@
-"""`schema.channel_stats` (the exact per-channel point-cloud statistics `bavo-collect` writes at the end) equals
-numpy's own min / max / mean / std / quantile along axis 0 of the float64 array, bit for bit."""
+"""`schema.channel_stats` (the exact per-channel point-cloud statistics `bavo-collect` writes at the end)
+equals numpy's own min / max / mean / std / quantile along axis 0 of the float64 array, bit for bit."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ import pytest
 from lerobot_bavo.datasets import schema as S
 
 
-def numpy_channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)) -> dict[str, np.ndarray]:
+def numpy_channel_stats(
+    values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)
+) -> dict[str, np.ndarray]:
     """The straightforward whole-array version (what `channel_stats` computed before issue 11's speed-up)."""
     flat = np.asarray(values, dtype=np.float64).reshape(-1, values.shape[-1])
     stats = {"min": flat.min(0), "max": flat.max(0), "mean": flat.mean(0), "std": flat.std(0),
@@ -38,7 +40,8 @@ def test_equals_numpy_across_block_boundaries(rows):
 
 def test_point_cloud_layout_and_a_hand_computed_case():
     # (frames, points, channels) as the dataset stores them, unflattened
-    values = np.arange(2 * 3 * 2, dtype=np.float32).reshape(2, 3, 2)  # channel 0: 0,2,..,10; channel 1: 1,3,..,11
+    # channel 0: 0,2,..,10; channel 1: 1,3,..,11
+    values = np.arange(2 * 3 * 2, dtype=np.float32).reshape(2, 3, 2)
     stats = S.channel_stats(values)
     assert_identical(stats, numpy_channel_stats(values))
     np.testing.assert_array_equal(stats["mean"], [5.0, 6.0])

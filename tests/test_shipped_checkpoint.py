@@ -1,5 +1,6 @@
-"""The A-FAR checkpoint shipped in `checkpoints/afar_cube_handoff` (the demo's policy) loads in both evaluators
-and acts: a smoke test (finite actions for a few steps), not an SR assertion; SR is in its model card."""
+"""The A-FAR checkpoint shipped in `checkpoints/afar_cube_handoff` (the demo's policy) loads in both
+evaluators and acts: a smoke test (finite actions for a few steps), not an SR assertion; SR is in its model
+card."""
 
 from __future__ import annotations
 
@@ -20,7 +21,9 @@ def test_shipped_checkpoint_is_complete_small_and_documented():
             "README.md", "train_config.json"} <= names
     assert sum(p.stat().st_size for p in SHIPPED_CHECKPOINT.iterdir()) <= 7_000_000  # inference weights only
     cfg = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
-    assert cfg["type"] == "afar" and not any(k.startswith("observation.teacher") for k in cfg["input_features"])
+    assert cfg["type"] == "afar" and not any(
+        k.startswith("observation.teacher") for k in cfg["input_features"]
+    )
     card = (SHIPPED_CHECKPOINT / "README.md").read_text()
     assert "bavo-eval" in card and "huggingface-cli upload" in card and "SR (%)" in card
 
@@ -49,11 +52,26 @@ def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path):
     exe = Path(sys.executable).with_name("lerobot-eval")
     env = dict(os.environ, HF_HUB_OFFLINE="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
                MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    proc = subprocess.run([str(exe), f"--policy.path={SHIPPED_CHECKPOINT}", "--policy.device=cpu", "--env.type=bavo",
-                           "--env.task=cube_handoff", "--env.condition=stage", "--env.episode_length=8",
-                           "--eval.n_episodes=1", "--eval.batch_size=1", "--eval.use_async_envs=false",
-                           f"--output_dir={tmp_path / 'eval'}"],
-                          capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    proc = subprocess.run(
+        [
+            str(exe),
+            f"--policy.path={SHIPPED_CHECKPOINT}",
+            "--policy.device=cpu",
+            "--env.type=bavo",
+            "--env.task=cube_handoff",
+            "--env.condition=stage",
+            "--env.episode_length=8",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--eval.use_async_envs=false",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+        cwd=tmp_path,
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1

@@ -1,5 +1,5 @@
-"""The package's structure stays as issue 31 left it: no import loops, no arrows from a lower layer up (envs/ to
-eval/, teacher/ to datasets/, ...), and no private name used across modules (LeRobot's only in
+"""The package's structure stays as issue 31 left it: no import loops, no arrows from a lower layer up (envs/
+to eval/, teacher/ to datasets/, ...), and no private name used across modules (LeRobot's only in
 `datasets/lerobot_private.py`). Measured from the source by `scripts/import_graph.py` (no imports run)."""
 
 from __future__ import annotations

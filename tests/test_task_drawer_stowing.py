@@ -46,7 +46,9 @@ class Scene(EditedScene):
             self.d.qpos[self.qadr(f"{side}_finger_{f}")] = opening
         self.d.ctrl[self.m.actuator(f"{side}_gripper").id] = opening
         mujoco.mj_kinematics(self.m, self.d)
-        assert np.linalg.norm(self.d.site(f"{side}_gripper_center").xpos - pos) < 1e-3, "test setup: IK failed"
+        assert np.linalg.norm(self.d.site(f"{side}_gripper_center").xpos - pos) < 1e-3, (
+            "test setup: IK failed"
+        )
 
     def set_slide(self, value: float) -> None:
         self.d.qpos[self.task.slide_qadr] = value
@@ -251,7 +253,11 @@ def test_reset_distribution_respects_documented_ranges(env):
     cab, block, yaws = [], [], []
     for seed in range(30):
         _, info = env.reset(seed=seed)
-        b, c, d = info["object_poses"]["block"], info["object_poses"]["cabinet"], info["object_poses"]["drawer"]
+        b, c, d = (
+            info["object_poses"]["block"],
+            info["object_poses"]["cabinet"],
+            info["object_poses"]["drawer"],
+        )
         cab.append(c[:3])
         block.append(b[:3])
         w, x, y, z = b[3:]

@@ -74,7 +74,9 @@ def flags(env, settle_steps: int = 0) -> dict[str, bool]:
 
 def local_to_world(pos_xy, yaw, local) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([pos_xy[0] + c * local[0] - s * local[1], pos_xy[1] + s * local[0] + c * local[1], local[2]])
+    return np.array(
+        [pos_xy[0] + c * local[0] - s * local[1], pos_xy[1] + s * local[0] + c * local[1], local[2]]
+    )
 
 
 def grasp_arm(env, side: str, point, yaw: float, finger: float) -> None:

@@ -74,7 +74,9 @@ class Scene(EditedScene):
             self.d.qpos[self.qadr(f"{side}_finger_{f}")] = opening
         self.d.ctrl[self.m.actuator(f"{side}_gripper").id] = opening
         mujoco.mj_kinematics(self.m, self.d)
-        assert np.linalg.norm(self.d.site(f"{side}_gripper_center").xpos - pos) < 3e-4, "test setup: IK failed"
+        assert np.linalg.norm(self.d.site(f"{side}_gripper_center").xpos - pos) < 3e-4, (
+            "test setup: IK failed"
+        )
 
     def place_spatula(self, exposure: float, lift: float = 0.0, lateral: float = 0.0) -> None:
         """Spatula along the groove, its handle tip `exposure` past the left edge, raised `lift`."""
@@ -98,7 +100,9 @@ class Scene(EditedScene):
         return self.world([x, 0.0, self.top + 2 * self.blade[2] + PAD_DEPTH_HALF - depth])
 
     def park(self, side: str) -> None:
-        self.place_gripper(side, self.world([0.0, 0.0, 0.30]) + [0.25 if side == "right" else -0.25, 0, 0], OPEN)
+        self.place_gripper(
+            side, self.world([0.0, 0.0, 0.30]) + [0.25 if side == "right" else -0.25, 0, 0], OPEN
+        )
 
     def spatula_contacts(self) -> set[str]:
         ids = {self.m.geom("blade_geom").id, self.m.geom("handle_geom").id}

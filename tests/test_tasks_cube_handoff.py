@@ -218,7 +218,12 @@ def test_both_grippers_hold_lifted_cube_is_m3(scene):
     scene.place_gripper("left", centre, DOWN_CLOSE_X, GRIP)
     scene.place_cube(centre, rot)
     flags = scene.evaluate()
-    assert {"left_finger_a_pad", "left_finger_b_pad", "right_finger_a_pad", "right_finger_b_pad"} <= scene.cube_contacts()
+    assert {
+        "left_finger_a_pad",
+        "left_finger_b_pad",
+        "right_finger_a_pad",
+        "right_finger_b_pad",
+    } <= scene.cube_contacts()
     # Right still touches the cube, so the handoff (M4) is not complete.
     assert flags == milestone_flags(m1=True, m2=True, m3=True), flags
 
@@ -244,7 +249,9 @@ def test_predicate_flags_drive_tracker_in_order(scene):
     tracker = MilestoneTracker()
     plate = scene.plate_xyz()
     lift = np.array([0.02, 0.04, 0.16])
-    rot = scene.place_gripper("right", np.array([0.14, 0.02, scene.table_top() + CUBE_HALF]), DOWN_CLOSE_Y, GRIP)
+    rot = scene.place_gripper(
+        "right", np.array([0.14, 0.02, scene.table_top() + CUBE_HALF]), DOWN_CLOSE_Y, GRIP
+    )
     scene.place_cube(np.array([0.14, 0.02, scene.table_top() + CUBE_HALF]), rot)
     assert tracker.update(scene.evaluate(), 1) == 1
     rot = scene.place_gripper("right", lift, DOWN_CLOSE_Y, GRIP)
@@ -315,7 +322,9 @@ def test_initialize_episode_uses_only_the_given_generator(env):
 
 def test_task_registry():
     assert make_task("cube_handoff").name == "cube_handoff"
-    with pytest.raises(ValueError, match="unknown task 'cube_stack'; registered: cube_handoff, block_stacking"):
+    with pytest.raises(
+        ValueError, match="unknown task 'cube_stack'; registered: cube_handoff, block_stacking"
+    ):
         make_task("cube_stack")
     for name in TASKS:
         assert make_task(name).name == name
@@ -336,7 +345,9 @@ def test_tracker_requires_order():
 def test_tracker_depth_never_decreases():
     t = MilestoneTracker()
     t.update(milestone_flags(m1=True, m2=True), 0)
-    for step, flags in enumerate([milestone_flags(), milestone_flags(m1=True), milestone_flags(m5=True), milestone_flags()], start=1):
+    for step, flags in enumerate(
+        [milestone_flags(), milestone_flags(m1=True), milestone_flags(m5=True), milestone_flags()], start=1
+    ):
         assert t.update(flags, step) == 2
     assert t.depth == 2 and t.reached_at == [0, 0]
 

@@ -48,8 +48,16 @@ def scene_episode():
         mujoco.mj_forward(model, data)
         rgb, _ = renderer.render_rgbd(data, cam)
         seg, depth = renderer.render_segmentation(data, cam, with_depth=True)
-        frames.append(dict(rgb=rgb, depth=depth, body_seg=geom_body[seg].astype(np.int16), camera_pose=env.camera_pose(),
-                           body_xpos=data.xpos.copy(), body_xmat=data.xmat.reshape(-1, 3, 3).copy()))
+        frames.append(
+            dict(
+                rgb=rgb,
+                depth=depth,
+                body_seg=geom_body[seg].astype(np.int16),
+                camera_pose=env.camera_pose(),
+                body_xpos=data.xpos.copy(),
+                body_xmat=data.xmat.reshape(-1, 3, 3).copy(),
+            )
+        )
         cube_poses.append((data.xpos[cube_body].copy(), data.xmat[cube_body].reshape(3, 3).copy()))
 
     snap()
@@ -89,7 +97,9 @@ def test_moving_point_moves_with_its_object_and_static_point_stays(scene_episode
     teacher = SimulatorTeacher(with_visibility=True)
     u_c, v_c = _pixel_of(ep, cube_body)
     u_t, v_t = _pixel_of(ep, 0)  # static world geometry (the table)
-    q = np.array([[u_c, v_c, 0, t, t] for t in range(3)] + [[u_t, v_t, 0, t, t] for t in range(3)], dtype=float)
+    q = np.array(
+        [[u_c, v_c, 0, t, t] for t in range(3)] + [[u_t, v_t, 0, t, t] for t in range(3)], dtype=float
+    )
     ans = teacher.answer(clip, q)
     assert ans.shape == (6, 4) and ans.dtype == np.float32
 
@@ -135,7 +145,9 @@ def test_answers_are_independent_of_the_other_queries(scene_episode):
     ep, cube_body, _ = scene_episode
     clip = make_clip(ep, anchor=1, clip_length=3, anchor_index=1)
     rng = np.random.default_rng(0)
-    q = np.column_stack([rng.integers(0, W, 50), rng.integers(0, H, 50), rng.integers(0, 3, (50, 3))]).astype(float)
+    q = np.column_stack([rng.integers(0, W, 50), rng.integers(0, H, 50), rng.integers(0, 3, (50, 3))]).astype(
+        float
+    )
     teacher = SimulatorTeacher(with_visibility=True)
     full = teacher.answer(clip, q)
     for i in (0, 17, 49):
@@ -145,16 +157,21 @@ def test_answers_are_independent_of_the_other_queries(scene_episode):
     with pytest.raises(ValueError, match="query times"):
         teacher.answer(clip, np.array([[1, 1, 0, 3, 0.0]]))
     with pytest.raises(ValueError, match="privileged"):
-        teacher.answer(EpisodeClip(frames=[0, 1], K=ep.K, episode_rgb=ep.rgb, episode_camera_poses=ep.camera_pose), q[:2])
+        teacher.answer(
+            EpisodeClip(frames=[0, 1], K=ep.K, episode_rgb=ep.rgb, episode_camera_poses=ep.camera_pose), q[:2]
+        )
 
 
 def test_clip_construction_clamps_at_the_episode_boundaries():
     np.testing.assert_array_equal(clip_frames(20, 100), np.arange(4, 36))
-    np.testing.assert_array_equal(clip_frames(3, 100)[:14], np.zeros(14))  # frames before the start repeat frame 0
+    # frames before the start repeat frame 0
+    np.testing.assert_array_equal(clip_frames(3, 100)[:14], np.zeros(14))
     assert clip_frames(3, 100)[16] == 3 and clip_frames(3, 100)[31] == 18
     late = clip_frames(90, 100)  # t + 15 = 105 > 99
     assert late[16] == 90 and late[25] == 99 and late[31] == 99
-    ep = SimpleNamespace(rgb=np.zeros((100, 4, 4, 3), np.uint8), camera_pose=np.tile(np.eye(4), (100, 1, 1)), K=np.eye(3))
+    ep = SimpleNamespace(
+        rgb=np.zeros((100, 4, 4, 3), np.uint8), camera_pose=np.tile(np.eye(4), (100, 1, 1)), K=np.eye(3)
+    )
     assert make_clip(ep, 84).valid_future() and not make_clip(ep, 85).valid_future()
     assert make_clip(ep, 50).rgb.shape == (32, 4, 4, 3)
 

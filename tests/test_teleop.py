@@ -48,7 +48,9 @@ def _site(env, name):
 
 
 # ----------------------------------------------------------------------------- control mapping
-@pytest.mark.parametrize("key,axis,sign", [("d", 0, 1), ("a", 0, -1), ("w", 1, 1), ("s", 1, -1), ("r", 2, 1), ("f", 2, -1)])
+@pytest.mark.parametrize(
+    "key,axis,sign", [("d", 0, 1), ("a", 0, -1), ("w", 1, 1), ("s", 1, -1), ("r", 2, 1), ("f", 2, -1)]
+)
 def test_each_key_moves_the_selected_arm_the_commanded_way(env, key, axis, sign):
     env.reset(seed=0)
     ctl = TeleopController.from_env(env)
@@ -57,7 +59,8 @@ def test_each_key_moves_the_selected_arm_the_commanded_way(env, key, axis, sign)
     moved = _site(env, "left_gripper_center") - before["left"]
     assert sign * moved[axis] > 0.04, moved  # 10 ticks x 6 mm, tracked by the arm
     assert np.abs(np.delete(moved, axis)).max() < 0.01, moved
-    np.testing.assert_allclose(_site(env, "right_gripper_center"), before["right"], atol=2e-3)  # one arm at a time
+    # one arm at a time
+    np.testing.assert_allclose(_site(env, "right_gripper_center"), before["right"], atol=2e-3)
 
 
 def test_yaw_gripper_camera_and_fine_motion(env):
@@ -65,7 +68,9 @@ def test_yaw_gripper_camera_and_fine_motion(env):
     ctl = TeleopController.from_env(env)
     R0 = ctl.arms["right"].rot.copy()
     _drive(env, ctl, [TickInput(taps=("2",))] + [TickInput(keys=("q",))] * 10)
-    yaw = np.arctan2(ctl.arms["right"].rot[1, 0], ctl.arms["right"].rot[0, 0]) - np.arctan2(R0[1, 0], R0[0, 0])
+    yaw = np.arctan2(ctl.arms["right"].rot[1, 0], ctl.arms["right"].rot[0, 0]) - np.arctan2(
+        R0[1, 0], R0[0, 0]
+    )
     assert (yaw + np.pi) % (2 * np.pi) - np.pi == pytest.approx(10 * 0.04 * 1.0, abs=1e-6)
     assert ctl.action()[13] == 1.0
     _drive(env, ctl, [TickInput(taps=(" ",))], steps=10)
@@ -113,12 +118,17 @@ def test_gamepad_and_webxr_inputs(env):
     env.reset(seed=0)
     ctl = TeleopController.from_env(env)
     ident = [0, 0, 0, 0, 0, 0, 1]
-    xr0 = {"head": [0, 1.6, 0, 0, 0, 0, 1], "left": [-0.2, 1.0, -0.3] + ident[3:], "right": [0.2, 1.0, -0.3] + ident[3:],
-           "right_trigger": 1.0}
+    xr0 = {
+        "head": [0, 1.6, 0, 0, 0, 0, 1],
+        "left": [-0.2, 1.0, -0.3] + ident[3:],
+        "right": [0.2, 1.0, -0.3] + ident[3:],
+        "right_trigger": 1.0,
+    }
     ctl.step(TickInput(xr=xr0))
     p_left, p_right, p_cam = (ctl.arms[a].pos.copy() for a in ("left", "right", "camera"))
     assert ctl.arms["right"].gripper == 0.0 and ctl.arms["left"].gripper == 1.0
-    xr1 = dict(xr0, right=[0.25, 1.0, -0.35] + ident[3:], head=[0, 1.62, 0, 0, 0, 0, 1])  # right hand: +5 cm x, 5 cm away
+    # right hand: +5 cm x, 5 cm away
+    xr1 = dict(xr0, right=[0.25, 1.0, -0.35] + ident[3:], head=[0, 1.62, 0, 0, 0, 0, 1])
     ctl.step(TickInput(xr=xr1))
     np.testing.assert_allclose(ctl.arms["right"].pos - p_right, [0.05, 0.05, 0.0], atol=1e-3)
     np.testing.assert_allclose(ctl.arms["left"].pos, p_left, atol=1e-6)
@@ -179,8 +189,12 @@ def test_session_saves_discards_and_replays_bit_for_bit(tmp_path):
         _wait(lambda: session.state == "running" and frames[-1].get("tick", 0) > 3, what="third episode")
         n = len(frames)
         session.command("rerecord")  # discard it and record the same seed again
-        _wait(lambda: any(h.get("type") == "frame" and h["state"] == "running" and h["tick"] > 3 for h in frames[n:]),
-              what="re-recorded episode")
+        _wait(
+            lambda: any(
+                h.get("type") == "frame" and h["state"] == "running" and h["tick"] > 3 for h in frames[n:]
+            ),
+            what="re-recorded episode",
+        )
         running = [h["seed"] for h in frames[:n] if h.get("type") == "frame" and h["state"] == "running"]
         again = {h["seed"] for h in frames[n:] if h.get("type") == "frame" and h["state"] == "running"}
         assert running[0] == 7 and running[-1] == 9 and again == {9}  # 8 was discarded, 9 is recorded again
@@ -198,23 +212,37 @@ def test_session_saves_discards_and_replays_bit_for_bit(tmp_path):
     assert set(S.TEACHER_KEYS) <= set(ds.meta.features)
     assert {int(ds.hf_dataset[i][S.ANN_SOURCE]) for i in range(30)} == {1}
     entry = read_sidecar(root)["episodes"][0]
-    assert entry["source"] == "human" and entry["seed"] == 7 and read_sidecar(root)["settings"]["source"] == "human"
+    assert (
+        entry["source"] == "human"
+        and entry["seed"] == 7
+        and read_sidecar(root)["settings"]["source"] == "human"
+    )
 
     # replay the input log: the same episode, bit for bit
     log = root / entry["input_log"]
     record, agent, header = replay_log(log)
-    cols = {k: np.stack([np.asarray(ds.hf_dataset[i][k]) for i in range(30)])
-            for k in (S.ACTION, S.OBS_STATE, S.OBS_POINT_CLOUD, S.OBS_CAMERA_POSE, S.TEACHER_ZF, S.ANN_ACTIVE)}
+    cols = {
+        k: np.stack([np.asarray(ds.hf_dataset[i][k]) for i in range(30)])
+        for k in (S.ACTION, S.OBS_STATE, S.OBS_POINT_CLOUD, S.OBS_CAMERA_POSE, S.TEACHER_ZF, S.ANN_ACTIVE)
+    }
     np.testing.assert_array_equal(cols[S.ACTION], record.action)
     np.testing.assert_array_equal(cols[S.OBS_STATE], record.state)
     np.testing.assert_array_equal(cols[S.OBS_POINT_CLOUD], record.point_cloud.reshape(30, -1))
-    np.testing.assert_array_equal(cols[S.OBS_CAMERA_POSE], record.camera_pose.reshape(30, 16).astype(np.float32))
-    assert cols[S.ACTION][-1, 13] == 0.0 and cols[S.ANN_ACTIVE].sum() > 0  # gripper closed; a camera recovery move
+    np.testing.assert_array_equal(
+        cols[S.OBS_CAMERA_POSE], record.camera_pose.reshape(30, 16).astype(np.float32)
+    )
+    # gripper closed; a camera recovery move
+    assert cols[S.ACTION][-1, 13] == 0.0 and cols[S.ANN_ACTIVE].sum() > 0
     again, _, _ = replay_log(log)
     assert record_digest(again) == record_digest(record)  # images too
 
     # `bavo-teleop --replay LOG --root` writes the same rows into another dataset
-    assert teleop_main(["--replay", str(log), "--repo-id", "tester/replayed", "--root", str(tmp_path / "replayed")]) == 0
+    assert (
+        teleop_main(
+            ["--replay", str(log), "--repo-id", "tester/replayed", "--root", str(tmp_path / "replayed")]
+        )
+        == 0
+    )
     rep = load_bavo_dataset("tester/replayed", root=tmp_path / "replayed")
     for k in (S.ACTION, S.OBS_STATE, S.TEACHER_Z0, S.ANN_VISIBILITY):
         np.testing.assert_array_equal(np.stack([np.asarray(rep.hf_dataset[i][k]) for i in range(30)]),
@@ -235,8 +263,20 @@ def test_session_saves_discards_and_replays_bit_for_bit(tmp_path):
 
     # mixes with an expert dataset through LeRobot's merge tool; expert episodes are marked 0
     expert_root = tmp_path / "expert"
-    collect(CollectConfig(task="cube_handoff", condition="stage", episodes=1, repo_id="tester/expert", root=expert_root,
-                          workers=0, settings=SETTINGS, episode_length=30, keep_failures=True, progress=False))
+    collect(
+        CollectConfig(
+            task="cube_handoff",
+            condition="stage",
+            episodes=1,
+            repo_id="tester/expert",
+            root=expert_root,
+            workers=0,
+            settings=SETTINGS,
+            episode_length=30,
+            keep_failures=True,
+            progress=False,
+        )
+    )
     expert = load_bavo_dataset("tester/expert", root=expert_root)
     human = load_bavo_dataset(REPO, root=root)
     merge_datasets([expert, human], output_repo_id="tester/mixed", output_dir=tmp_path / "mixed")
@@ -263,7 +303,16 @@ def test_cli_help_explains_controls_and_modes(capsys):
     with pytest.raises(SystemExit):
         teleop_main(["--help"])
     out = capsys.readouterr().out
-    for text in ("--replay", "look-at", "Gamepad", "WebXR", "select the left arm", "discard", "re-record", "25 Hz"):
+    for text in (
+        "--replay",
+        "look-at",
+        "Gamepad",
+        "WebXR",
+        "select the left arm",
+        "discard",
+        "re-record",
+        "25 Hz",
+    ):
         assert text in out, text
     with pytest.raises(SystemExit):
         teleop_main(["--task", "cube_handoff"])
@@ -276,7 +325,8 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
 
 
 def start_server(root: Path, *extra: str) -> tuple[subprocess.Popen, str]:
-    """`python -m lerobot_bavo.teleop` on 127.0.0.1 and a free port; returns (process, url with the run's token)."""
+    """`python -m lerobot_bavo.teleop` on 127.0.0.1 and a free port; returns (process, url with the run's
+    token)."""
     env = dict(os.environ, SVT_LOG="1", PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
         [sys.executable, "-m", "lerobot_bavo.teleop", "--task", "cube_handoff", "--condition", "stage",
@@ -293,7 +343,12 @@ def start_server(root: Path, *extra: str) -> tuple[subprocess.Popen, str]:
 
 def open_page(playwright, url: str, profile: Path):
     ctx = playwright.chromium.launch_persistent_context(
-        str(profile), executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS, viewport={"width": 1020, "height": 790})
+        str(profile),
+        executable_path=CHROMIUM,
+        headless=True,
+        args=CHROMIUM_ARGS,
+        viewport={"width": 1020, "height": 790},
+    )
     page = ctx.new_page()
     page.goto(url)
     page.wait_for_function("window.bavo && window.bavo.connected && window.bavo.frames > 0", timeout=30000)
@@ -308,7 +363,9 @@ def hold(page, key: str, seconds: float) -> None:
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's `chromium` (apt-get install chromium)")
 def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
-    playwright_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (pip install playwright)")
+    playwright_api = pytest.importorskip(
+        "playwright.sync_api", reason="needs playwright (pip install playwright)"
+    )
     from lerobot_bavo.datasets.hub import load_bavo_dataset, read_sidecar
     from lerobot_bavo.teleop.session import replay_log
 
@@ -333,8 +390,9 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
                 state("ended")  # the 60-step limit
                 before = _files(root)
                 page.keyboard.press("Enter")
-                page.wait_for_function("window.bavo.status.episodes === 1 && window.bavo.status.state === 'idle'",
-                                       timeout=120000)
+                page.wait_for_function(
+                    "window.bavo.status.episodes === 1 && window.bavo.status.state === 'idle'", timeout=120000
+                )
                 assert _files(root) != before
                 saved = _files(root)
                 page.click("#b-start")
@@ -348,8 +406,11 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
                 print(f"key press -> next rendered frame: median {np.median(latencies):.0f} ms, "
                       f"max {np.max(latencies):.0f} ms over {len(latencies)} presses")
                 assert np.median(latencies) < 500
-                # what headless Chromium offers for WebXR by itself (the page then hides its "Enter VR" button)
-                native = page.evaluate("navigator.xr ? navigator.xr.isSessionSupported('immersive-vr') : 'no navigator.xr'")
+                # what headless Chromium offers for WebXR by itself (the page then hides its "Enter VR"
+                # button)
+                native = page.evaluate(
+                    "navigator.xr ? navigator.xr.isSessionSupported('immersive-vr') : 'no navigator.xr'"
+                )
                 assert native in (False, "no navigator.xr") and not page.is_visible("#b-xr")
                 print(f"headless Chromium: navigator.xr immersive-vr supported = {native}")
             finally:
@@ -384,13 +445,15 @@ FAKE_XR = """
       super();
       this.inputSources = [
         { handedness: "left", gripSpace: "left", gamepad: { buttons: [{ value: 0 }] } },
-        { handedness: "right", gripSpace: "right", gamepad: { buttons: [{ get value() { return state.rt; } }] } }];
+        { handedness: "right", gripSpace: "right",
+          gamepad: { buttons: [{ get value() { return state.rt; } }] } }];
     }
     updateRenderState(s) { this.renderState = s; }
     async requestReferenceSpace() { return "ref"; }
     requestAnimationFrame(cb) {
-      return setTimeout(() => cb(performance.now(), { getViewerPose: () => Object.assign(pose(state.head), { views: [{}] }),
-                                                      getPose: (space) => pose(state[space]) }), 16);
+      return setTimeout(() => cb(performance.now(), {
+        getViewerPose: () => Object.assign(pose(state.head), { views: [{}] }),
+        getPose: (space) => pose(state[space]) }), 16);
     }
     end() { this.dispatchEvent(new Event("end")); }
   }
@@ -410,13 +473,27 @@ FAKE_XR = """
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's `chromium` (apt-get install chromium)")
 def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
-    playwright_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (pip install playwright)")
-    proc, url = start_server(tmp_path / "human", "--image-height", "48", "--image-width", "64", "--n-points", "32",
-                             "--episode-length", "200", "--third-person-height", "120")
+    playwright_api = pytest.importorskip(
+        "playwright.sync_api", reason="needs playwright (pip install playwright)"
+    )
+    proc, url = start_server(
+        tmp_path / "human",
+        "--image-height",
+        "48",
+        "--image-width",
+        "64",
+        "--n-points",
+        "32",
+        "--episode-length",
+        "200",
+        "--third-person-height",
+        "120",
+    )
     try:
         with playwright_api.sync_playwright() as p:
-            ctx = p.chromium.launch_persistent_context(str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True,
-                                                       args=CHROMIUM_ARGS)
+            ctx = p.chromium.launch_persistent_context(
+                str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS
+            )
             try:
                 page = ctx.new_page()
                 page.add_init_script(FAKE_XR)
@@ -427,11 +504,14 @@ def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
                 page.click("#b-xr")
                 time.sleep(0.5)
                 ee0 = page.evaluate("window.bavo.lastHeader.ee")
-                page.evaluate("window.__xr.head[1] += 0.05; window.__xr.right[0] += 0.06; window.__xr.rt = 1;")
+                page.evaluate(
+                    "window.__xr.head[1] += 0.05; window.__xr.right[0] += 0.06; window.__xr.rt = 1;"
+                )
                 time.sleep(1.2)
                 h = page.evaluate("window.bavo.lastHeader")
                 assert h["ee"]["camera"][2] - ee0["camera"][2] > 0.03, (ee0, h["ee"])  # head up -> camera up
-                assert h["ee"]["right"][0] - ee0["right"][0] > 0.04, (ee0, h["ee"])  # right hand +x -> right arm +x
+                # right hand +x -> right arm +x
+                assert h["ee"]["right"][0] - ee0["right"][0] > 0.04, (ee0, h["ee"])
                 assert abs(h["ee"]["left"][0] - ee0["left"][0]) < 0.01 and h["grippers"]["right"] == 0.0
                 webgl, drawn = page.evaluate("[window.bavo.xrWebGL, window.bavo.xrFramesDrawn || 0]")
                 assert drawn > 0 or not webgl  # the headset view is drawn where WebGL exists
@@ -442,10 +522,13 @@ def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
                 time.sleep(0.3)
                 left = page.evaluate("window.bavo.lastHeader.ee.left")
                 assert left[0] - h["ee"]["left"][0] > 0.02
-                # gamepad: left stick pushed up (axis 1 = -1) moves the selected arm away from the operator (+y)
-                # (held until the arm has moved 3 cm or 20 s passed: on a loaded machine the 25 Hz loop slips
-                # behind the wall clock, so a fixed hold time moves the arm by less)
-                page.evaluate("window.__pad = {axes: [0, -1, 0, 0], buttons: Array.from({length: 17}, () => ({pressed: false}))}")
+                # gamepad: left stick pushed up (axis 1 = -1) moves the selected arm away from the operator
+                # (+y) (held until the arm has moved 3 cm or 20 s passed: on a loaded machine the 25 Hz loop
+                # slips behind the wall clock, so a fixed hold time moves the arm by less)
+                page.evaluate(
+                    "window.__pad = {axes: [0, -1, 0, 0], buttons: Array.from({length: 17}, () => ({pressed: "
+                    "false}))}"
+                )
                 deadline = time.time() + 20
                 while time.time() < deadline:
                     time.sleep(0.2)

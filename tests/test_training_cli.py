@@ -38,9 +38,21 @@ def _run(cmd: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def points_dataset(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("train") / "bavo_tiny"
-    collect(CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id="tester/bavo_tiny", root=root,
-                          workers=0, commit_every=2, settings=SETTINGS, episode_length=40, keep_failures=True,
-                          progress=False))
+    collect(
+        CollectConfig(
+            task="cube_handoff",
+            condition="stage",
+            episodes=2,
+            repo_id="tester/bavo_tiny",
+            root=root,
+            workers=0,
+            commit_every=2,
+            settings=SETTINGS,
+            episode_length=40,
+            keep_failures=True,
+            progress=False,
+        )
+    )
     make_view(root, "points")
     return root.with_name("bavo_tiny_points")
 
@@ -89,11 +101,24 @@ def test_afar_trains_checkpoints_resumes_and_evaluates(points_dataset, tmp_path)
 
     # lerobot-eval loads it too.
     eval_out = tmp_path / "eval"
-    _run(_cli("lerobot-eval", "lerobot.scripts.lerobot_eval") + [
-        f"--policy.path={ckpt}", "--policy.device=cpu", "--env.type=bavo", "--env.task=cube_handoff",
-        "--env.episode_length=10", "--env.image_height=48", "--env.image_width=64", "--env.n_points=32",
-        "--eval.n_episodes=1", "--eval.batch_size=1", "--eval.use_async_envs=false", f"--output_dir={eval_out}",
-    ], tmp_path)
+    _run(
+        _cli("lerobot-eval", "lerobot.scripts.lerobot_eval")
+        + [
+            f"--policy.path={ckpt}",
+            "--policy.device=cpu",
+            "--env.type=bavo",
+            "--env.task=cube_handoff",
+            "--env.episode_length=10",
+            "--env.image_height=48",
+            "--env.image_width=64",
+            "--env.n_points=32",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--eval.use_async_envs=false",
+            f"--output_dir={eval_out}",
+        ],
+        tmp_path,
+    )
     assert json.loads((eval_out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
 
 

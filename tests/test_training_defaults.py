@@ -1,5 +1,6 @@
-"""`lerobot-train` with LeRobot's own defaults (4 `spawn` DataLoader workers), on a BAVO training view and on a
-dataset of another robot; the batched in-memory data path gives LeRobot's items whatever the worker count."""
+"""`lerobot-train` with LeRobot's own defaults (4 `spawn` DataLoader workers), on a BAVO training view and on
+a dataset of another robot; the batched in-memory data path gives LeRobot's items whatever the worker
+count."""
 
 from __future__ import annotations
 
@@ -40,9 +41,21 @@ def _train(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def points_view(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("defaults") / "bavo_defaults"
-    collect(CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id="tester/bavo_defaults", root=root,
-                          workers=0, commit_every=2, settings=SETTINGS, episode_length=40, keep_failures=True,
-                          progress=False))
+    collect(
+        CollectConfig(
+            task="cube_handoff",
+            condition="stage",
+            episodes=2,
+            repo_id="tester/bavo_defaults",
+            root=root,
+            workers=0,
+            commit_every=2,
+            settings=SETTINGS,
+            episode_length=40,
+            keep_failures=True,
+            progress=False,
+        )
+    )
     make_view(root, "points")
     return root.with_name("bavo_defaults_points")
 
@@ -72,27 +85,56 @@ def other_robot_dataset(tmp_path_factory) -> Path:
 
 
 def test_lerobot_defaults_train_afar_on_a_bavo_view(points_view, tmp_path):
-    """No --num_workers: LeRobot's 4 `spawn` workers receive the in-memory dataset (they used to fail to pickle
-    it), and the occluder-dropout recipe reads the view's per-point label."""
+    """No --num_workers: LeRobot's 4 `spawn` workers receive the in-memory dataset (they used to fail to
+    pickle it), and the occluder-dropout recipe reads the view's per-point label."""
     out = tmp_path / "run"
-    proc = _train([
-        "--policy.type=afar", "--policy.preset=cpu_fast", "--policy.points_per_step=16", "--policy.device=cpu",
-        "--policy.occluder_dropout=0.5",
-        "--dataset.repo_id=tester/bavo_defaults_points", f"--dataset.root={points_view}", "--batch_size=4",
-        "--steps=2", "--save_freq=2", "--log_freq=1", f"--output_dir={out}", "--wandb.enable=false"], tmp_path)
+    proc = _train(
+        [
+            "--policy.type=afar",
+            "--policy.preset=cpu_fast",
+            "--policy.points_per_step=16",
+            "--policy.device=cpu",
+            "--policy.occluder_dropout=0.5",
+            "--dataset.repo_id=tester/bavo_defaults_points",
+            f"--dataset.root={points_view}",
+            "--batch_size=4",
+            "--steps=2",
+            "--save_freq=2",
+            "--log_freq=1",
+            f"--output_dir={out}",
+            "--wandb.enable=false",
+        ],
+        tmp_path,
+    )
     assert "loss_evo" in proc.stdout + proc.stderr
     cfg = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text())
     assert cfg["binary_action_dims"] == [6, 13]  # BAVO's gripper commands, found by the action's names
-    train_cfg = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
+    train_cfg = json.loads(
+        (out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text()
+    )
     assert train_cfg["num_workers"] == 4
 
 
 def test_lerobot_defaults_train_maniflow_on_another_robots_dataset(other_robot_dataset, tmp_path):
     """A 6-dim action with other names: nothing is snapped, and the policy trains, saves and loads."""
     out = tmp_path / "run"
-    _train(["--policy.type=maniflow", "--policy.preset=cpu_fast", "--policy.points_per_step=8", "--policy.device=cpu",
-            "--dataset.repo_id=tester/arm6", f"--dataset.root={other_robot_dataset}", "--batch_size=4",
-            "--steps=2", "--save_freq=2", "--log_freq=1", f"--output_dir={out}", "--wandb.enable=false"], tmp_path)
+    _train(
+        [
+            "--policy.type=maniflow",
+            "--policy.preset=cpu_fast",
+            "--policy.points_per_step=8",
+            "--policy.device=cpu",
+            "--dataset.repo_id=tester/arm6",
+            f"--dataset.root={other_robot_dataset}",
+            "--batch_size=4",
+            "--steps=2",
+            "--save_freq=2",
+            "--log_freq=1",
+            f"--output_dir={out}",
+            "--wandb.enable=false",
+        ],
+        tmp_path,
+    )
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     cfg = json.loads((ckpt / "config.json").read_text())
     assert cfg["binary_action_dims"] == []
@@ -131,7 +173,9 @@ def test_a_batch_gathered_at_once_equals_lerobots_items_collated(points_view):
     ref, fast = _datasets(points_view, "tester/bavo_defaults_points")
     # episode starts and ends (padded windows), both episodes, repeats, any order
     indices = [0, 1, 39, 40, 41, 79, 12, 12, 60]
-    _assert_same_batch(default_collate([ref[i] for i in indices]), default_collate(fast.__getitems__(indices)))
+    _assert_same_batch(
+        default_collate([ref[i] for i in indices]), default_collate(fast.__getitems__(indices))
+    )
 
 
 @pytest.mark.parametrize("workers", [2])

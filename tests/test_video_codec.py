@@ -32,8 +32,19 @@ STEPS = 30
 
 
 def _config(root: Path, episodes: int, **kw) -> CollectConfig:
-    base = dict(task="cube_handoff", condition="stage", episodes=episodes, repo_id="tester/bavo_codec", root=root,
-                workers=0, commit_every=1, settings=SETTINGS, episode_length=STEPS, keep_failures=True, progress=False)
+    base = dict(
+        task="cube_handoff",
+        condition="stage",
+        episodes=episodes,
+        repo_id="tester/bavo_codec",
+        root=root,
+        workers=0,
+        commit_every=1,
+        settings=SETTINGS,
+        episode_length=STEPS,
+        keep_failures=True,
+        progress=False,
+    )
     base.update(kw)
     return CollectConfig(**base)
 
@@ -88,7 +99,9 @@ def test_unknown_codec_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(ValueError, match="unknown video codec 'vp9'; choose one of h264, libsvtav1"):
         _config(tmp_path / "ds", 1, video_codec="vp9")
     with pytest.raises(SystemExit):
-        build_parser().parse_args(["--task", "cube_handoff", "--episodes", "1", "--repo-id", "a/b", "--vcodec", "vp9"])
+        build_parser().parse_args(
+            ["--task", "cube_handoff", "--episodes", "1", "--repo-id", "a/b", "--vcodec", "vp9"]
+        )
     assert "invalid choice: 'vp9'" in capsys.readouterr().err
     with pytest.raises(ValueError, match="unknown video codec"):
         rgb_encoder("av1")
@@ -98,7 +111,9 @@ def test_a_missing_encoder_names_the_way_out(monkeypatch):
     from lerobot.configs.video import VideoEncoderConfig
 
     monkeypatch.setattr(VideoEncoderConfig, "detect_available_encoders", lambda self, encoders: [])
-    with pytest.raises(ValueError, match=r"video codec 'h264' cannot be used with this PyAV build .*--vcodec \(libsvtav1\)"):
+    with pytest.raises(
+        ValueError, match=r"video codec 'h264' cannot be used with this PyAV build .*--vcodec \(libsvtav1\)"
+    ):
         rgb_encoder("h264")
 
 
@@ -118,7 +133,8 @@ def test_new_dataset_is_h264_and_keeps_it_when_continued(tmp_path):
 def test_libsvtav1_dataset_looks_like_an_old_one_and_stays_av1(tmp_path):
     root = tmp_path / "av1"
     collect(_config(root, 1, video_codec="libsvtav1"))
-    assert "video_codec" not in _record_settings(root)  # exactly the settings of records made before the choice
+    # exactly the settings of records made before the choice
+    assert "video_codec" not in _record_settings(root)
     assert _image_info(root)["video.codec"] == "av1" and _image_info(root)["video.crf"] == 30
     assert "| video, AV1 (SVT-AV1) |" in (root / "README.md").read_text()
     collect(_config(root, 2))  # the default would be h264 for a new dataset; this one keeps AV1

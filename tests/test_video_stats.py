@@ -66,12 +66,23 @@ def adversarial_batches(rng: np.random.Generator) -> dict[str, list[np.ndarray]]
         "constant_then_wide": late,  # a one-value range that widens late
         "two_frames": [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(2)],
         "four_channels": [rng.integers(0, 256, (30, 40, 4), dtype=np.uint8) for _ in range(7)],
-        "one_channel": [rng.integers(0, 256, (30, 40, 1), dtype=np.uint8) for _ in range(7)],  # LeRobot's own path
+        # LeRobot's own path
+        "one_channel": [rng.integers(0, 256, (30, 40, 1), dtype=np.uint8) for _ in range(7)],
     }
 
 
-@pytest.mark.parametrize("case", ["random_full_range", "widening", "constant", "constant_then_wide", "two_frames",
-                                  "four_channels", "one_channel"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "random_full_range",
+        "widening",
+        "constant",
+        "constant_then_wide",
+        "two_frames",
+        "four_channels",
+        "one_channel",
+    ],
+)
 def test_equals_lerobot_on_adversarial_frames(case):
     frames = adversarial_batches(np.random.default_rng(7))[case]
     rows = [encoder_rows(f) for f in frames]

@@ -77,8 +77,19 @@ def dataset_root(tmp_path_factory) -> Path:
     from lerobot_bavo.datasets.collect import CollectConfig, collect
 
     root = tmp_path_factory.mktemp("ds") / "bavo_view"
-    cfg = CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id=REPO_ID, root=root, workers=0,
-                        commit_every=2, settings=SETTINGS, episode_length=STEPS, keep_failures=True, progress=False)
+    cfg = CollectConfig(
+        task="cube_handoff",
+        condition="stage",
+        episodes=2,
+        repo_id=REPO_ID,
+        root=root,
+        workers=0,
+        commit_every=2,
+        settings=SETTINGS,
+        episode_length=STEPS,
+        keep_failures=True,
+        progress=False,
+    )
     assert collect(cfg)["episodes"] == 2
     return root
 
@@ -98,11 +109,20 @@ def test_dataset_episode_rrd_entities_cloud_and_camera(dataset_root, dataset_rrd
 
     rrd = Rrd(dataset_rrd)
     expected = {
-        "world": {"ViewCoordinates"}, E.CLOUD: {"Points3D"}, E.CAMERA: {"Transform3D"}, E.PINHOLE: {"Pinhole"},
-        E.RGB: {"EncodedImage"}, E.CAMERA_PATH: {"LineStrips3D"}, E.OCCLUDER: {"Boxes3D"},
-        E.TEACHER_QUERIES: {"Arrows3D"}, E.RELATION: {"Points3D"}, E.VISIBILITY: {"Scalars", "SeriesLines"},
-        E.PROGRESS: {"Scalars", "SeriesLines"}, E.RECOVERING: {"Scalars", "SeriesLines"},
-        E.EVENT_MARKERS: {"Scalars", "SeriesPoints"}, E.EVENTS: {"TextLog"},
+        "world": {"ViewCoordinates"},
+        E.CLOUD: {"Points3D"},
+        E.CAMERA: {"Transform3D"},
+        E.PINHOLE: {"Pinhole"},
+        E.RGB: {"EncodedImage"},
+        E.CAMERA_PATH: {"LineStrips3D"},
+        E.OCCLUDER: {"Boxes3D"},
+        E.TEACHER_QUERIES: {"Arrows3D"},
+        E.RELATION: {"Points3D"},
+        E.VISIBILITY: {"Scalars", "SeriesLines"},
+        E.PROGRESS: {"Scalars", "SeriesLines"},
+        E.RECOVERING: {"Scalars", "SeriesLines"},
+        E.EVENT_MARKERS: {"Scalars", "SeriesPoints"},
+        E.EVENTS: {"TextLog"},
         **{f"{E.MILESTONES}/m{i}": {"Scalars", "SeriesLines"} for i in range(1, 6)},
     }
     for path, archetypes in expected.items():
@@ -117,12 +137,18 @@ def test_dataset_episode_rrd_entities_cloud_and_camera(dataset_root, dataset_rrd
         assert int(item["episode_index"]) == 1 and int(item["index"]) == start + k
         cloud = S.unflatten_point_cloud(item[S.OBS_POINT_CLOUD].numpy(), SETTINGS.n_points)
         # the cloud of frame k is the dataset's cloud of frame k (xyz exactly, colours to 8 bits)
-        np.testing.assert_array_equal(np.asarray(rrd.at(E.CLOUD, k, "Points3D:positions"), np.float32), cloud[:, :3])
-        np.testing.assert_allclose(_rgba(rrd.at(E.CLOUD, k, "Points3D:colors")), cloud[:, 3:], atol=0.5 / 255 + 1e-6)
+        np.testing.assert_array_equal(
+            np.asarray(rrd.at(E.CLOUD, k, "Points3D:positions"), np.float32), cloud[:, :3]
+        )
+        np.testing.assert_allclose(
+            _rgba(rrd.at(E.CLOUD, k, "Points3D:colors")), cloud[:, 3:], atol=0.5 / 255 + 1e-6
+        )
         # the camera transform of frame k is observation.camera_pose
         pose = S.unflatten_camera_pose(item[S.OBS_CAMERA_POSE].numpy()).astype(np.float64)
         np.testing.assert_allclose(rrd.at(E.CAMERA, k, "Transform3D:translation")[0], pose[:3, 3], atol=1e-6)
-        np.testing.assert_allclose(_mat3(rrd.at(E.CAMERA, k, "Transform3D:mat3x3")[0]), pose[:3, :3], atol=1e-6)
+        np.testing.assert_allclose(
+            _mat3(rrd.at(E.CAMERA, k, "Transform3D:mat3x3")[0]), pose[:3, :3], atol=1e-6
+        )
         # the camera path so far ends at the camera
         path = np.asarray(rrd.at(E.CAMERA_PATH, k, "LineStrips3D:strips")[0])
         assert path.shape == (k + 1, 3) and np.allclose(path[-1], pose[:3, 3], atol=1e-6)
@@ -131,7 +157,8 @@ def test_dataset_episode_rrd_entities_cloud_and_camera(dataset_root, dataset_rrd
         np.testing.assert_allclose(rrd.at(E.OCCLUDER, k, "Boxes3D:centers")[0], occ[:3], atol=1e-6)
         xyzw = np.asarray(rrd.at(E.OCCLUDER, k, "Boxes3D:quaternions")[0])
         assert abs(abs(np.dot(xyzw, np.r_[occ[4:7], occ[3]] / np.linalg.norm(occ[3:7]))) - 1) < 1e-5
-        # the teacher's queries start at the cloud's points (z0 is the camera-frame cloud, moved back to the base)
+        # the teacher's queries start at the cloud's points (z0 is the camera-frame cloud, moved back to the
+        # base)
         np.testing.assert_allclose(rrd.at(E.TEACHER_QUERIES, k, "Arrows3D:origins"), cloud[:, :3], atol=1e-4)
         v = float(item[S.ANN_VISIBILITY])
         assert rrd.at(E.VISIBILITY, k, "Scalars:scalars") == pytest.approx([v], abs=1e-6)
@@ -154,14 +181,29 @@ def test_a_dataset_without_occluder_poses_is_continued_and_viewed(dataset_root, 
     from lerobot_bavo.viz.cli import main
 
     old = tmp_path / "old"
-    remove_feature(LeRobotDataset(REPO_ID, root=dataset_root), [S.ANN_OCCLUDER_POSE], output_dir=old, repo_id=REPO_ID)
+    remove_feature(
+        LeRobotDataset(REPO_ID, root=dataset_root), [S.ANN_OCCLUDER_POSE], output_dir=old, repo_id=REPO_ID
+    )
     shutil.copy(dataset_root / "meta" / "bavo_collection.json", old / "meta" / "bavo_collection.json")
-    cfg = CollectConfig(task="cube_handoff", condition="stage", episodes=3, repo_id=REPO_ID, root=old, workers=0,
-                        commit_every=1, settings=SETTINGS, episode_length=STEPS, keep_failures=True, progress=False)
+    cfg = CollectConfig(
+        task="cube_handoff",
+        condition="stage",
+        episodes=3,
+        repo_id=REPO_ID,
+        root=old,
+        workers=0,
+        commit_every=1,
+        settings=SETTINGS,
+        episode_length=STEPS,
+        keep_failures=True,
+        progress=False,
+    )
     assert collect(cfg)["episodes"] == 3
     ds = LeRobotDataset(REPO_ID, root=old)
     assert ds.meta.total_episodes == 3 and S.ANN_OCCLUDER_POSE not in ds.meta.features
-    assert main(["--root", str(old), "--episode", "2", "--save", str(tmp_path / "old.rrd"), "--no-images"]) == 0
+    assert (
+        main(["--root", str(old), "--episode", "2", "--save", str(tmp_path / "old.rrd"), "--no-images"]) == 0
+    )
     rrd = Rrd(tmp_path / "old.rrd")
     assert E.OCCLUDER not in rrd.archetypes and sorted(rrd.frames[E.CLOUD]) == list(range(STEPS))
 
@@ -219,22 +261,43 @@ def test_cli_arguments(dataset_root, tmp_path):
 
 
 def test_lerobot_info_and_dataset_viz_work_on_a_bavo_dataset(dataset_root, tmp_path):
-    """LeRobot's own CLIs on our installs: no torchcodec traceback (system FFmpeg), `lerobot-dataset-viz` saves
-    an .rrd of a BAVO episode (it needs lerobot[viz], a dependency of this package)."""
+    """LeRobot's own CLIs on our installs: no torchcodec traceback (system FFmpeg), `lerobot-dataset-viz`
+    saves an .rrd of a BAVO episode (it needs lerobot[viz], a dependency of this package)."""
     bindir = Path(sys.executable).parent
     env = dict(os.environ, HF_HUB_OFFLINE="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    info = subprocess.run([str(bindir / "lerobot-info")], capture_output=True, text=True, timeout=300, env=env)
+    info = subprocess.run(
+        [str(bindir / "lerobot-info")], capture_output=True, text=True, timeout=300, env=env
+    )
     assert info.returncode == 0, info.stderr[-3000:]
     assert "LeRobot version: 0.6.1" in info.stdout and "FFmpeg version: N/A" not in info.stdout
     assert "Traceback" not in info.stderr and "libtorchcodec" not in info.stderr
-    viz = subprocess.run([str(bindir / "lerobot-dataset-viz"), "--repo-id", REPO_ID, "--root", str(dataset_root),
-                          "--episode-index", "0", "--save", "1", "--output-dir", str(tmp_path), "--num-workers", "0"],
-                         capture_output=True, text=True, timeout=300, env=env)
+    viz = subprocess.run(
+        [
+            str(bindir / "lerobot-dataset-viz"),
+            "--repo-id",
+            REPO_ID,
+            "--root",
+            str(dataset_root),
+            "--episode-index",
+            "0",
+            "--save",
+            "1",
+            "--output-dir",
+            str(tmp_path),
+            "--num-workers",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
     assert viz.returncode == 0, viz.stderr[-3000:]
     assert "Traceback" not in viz.stderr
     saved = list(tmp_path.glob("*.rrd"))
     assert len(saved) == 1 and saved[0].stat().st_size > 10_000
-    assert "Points3D" not in "".join(a for s in Rrd(saved[0]).archetypes.values() for a in s)  # why bavo-view exists
+    # why bavo-view exists
+    assert "Points3D" not in "".join(a for s in Rrd(saved[0]).archetypes.values() for a in s)
 
 
 # ----------------------------------------------------------------------------- a bavo-eval episode
@@ -243,8 +306,26 @@ def eval_run(tmp_path_factory):
     from lerobot_bavo.eval.cli import main
 
     out = tmp_path_factory.mktemp("eval")
-    main(["--policy", "expert", "--tasks", "cube_handoff", "--conditions", "stage", "--episodes", "1", "--seed", "0",
-          "--output-dir", str(out), "--videos", "0", "--rerun", str(out / "videos")])
+    main(
+        [
+            "--policy",
+            "expert",
+            "--tasks",
+            "cube_handoff",
+            "--conditions",
+            "stage",
+            "--episodes",
+            "1",
+            "--seed",
+            "0",
+            "--output-dir",
+            str(out),
+            "--videos",
+            "0",
+            "--rerun",
+            str(out / "videos"),
+        ]
+    )
     record = json.loads((out / "episodes.jsonl").read_text().splitlines()[0])
     return out, record
 
@@ -256,26 +337,40 @@ def test_eval_episode_rrd_matches_the_rollout(eval_run):
     path = out / "videos" / "cube_handoff_stage_seed0.rrd"
     assert record["rerun"] == str(path) and path.is_file()
     rrd = Rrd(path)
-    for p, archetypes in {E.CLOUD: {"Points3D"}, E.CAMERA: {"Transform3D"}, E.PINHOLE: {"Pinhole"},
-                          E.RGB: {"EncodedImage"}, E.OCCLUDER: {"Boxes3D"}, E.CAMERA_PATH: {"LineStrips3D"},
-                          E.VISIBILITY: {"Scalars"}, E.PROGRESS: {"Scalars"}, f"{E.MILESTONES}/m5": {"Scalars"},
-                          E.EVENT_MARKERS: {"Scalars", "SeriesPoints"}, E.EVENTS: {"TextLog"}}.items():
+    for p, archetypes in {
+        E.CLOUD: {"Points3D"},
+        E.CAMERA: {"Transform3D"},
+        E.PINHOLE: {"Pinhole"},
+        E.RGB: {"EncodedImage"},
+        E.OCCLUDER: {"Boxes3D"},
+        E.CAMERA_PATH: {"LineStrips3D"},
+        E.VISIBILITY: {"Scalars"},
+        E.PROGRESS: {"Scalars"},
+        f"{E.MILESTONES}/m5": {"Scalars"},
+        E.EVENT_MARKERS: {"Scalars", "SeriesPoints"},
+        E.EVENTS: {"TextLog"},
+    }.items():
         assert archetypes <= rrd.archetypes[p], (p, rrd.archetypes.get(p))
     T = record["steps"] + 1  # every observation, the final one included
     assert sorted(rrd.frames[E.CLOUD]) == list(range(T))
     # the record carries what the viewer draws: per-step visibility and every placement's pose
     assert len(record["visibility"]) == T
     for k in (0, T // 2, T - 1):
-        assert rrd.at(E.VISIBILITY, k, "Scalars:scalars") == pytest.approx([record["visibility"][k]], abs=1e-4)
+        assert rrd.at(E.VISIBILITY, k, "Scalars:scalars") == pytest.approx(
+            [record["visibility"][k]], abs=1e-4
+        )
     placements = record["placements"]
     assert [p["step"] for p in placements] == sorted(rrd.frames[E.EVENT_MARKERS])
     for p, nxt in zip(placements, placements[1:] + [None], strict=True):
         for k in (p["step"], (nxt["step"] - 1) if nxt else T - 1):  # the panel stays put until the next event
-            np.testing.assert_allclose(rrd.at(E.OCCLUDER, k, "Boxes3D:centers")[0], p["occluder_pos"], atol=1e-5)
+            np.testing.assert_allclose(
+                rrd.at(E.OCCLUDER, k, "Boxes3D:centers")[0], p["occluder_pos"], atol=1e-5
+            )
             w, x, y, z = p["occluder_quat"]
             assert abs(abs(np.dot(rrd.at(E.OCCLUDER, k, "Boxes3D:quaternions")[0], [x, y, z, w])) - 1) < 1e-4
     assert rrd.at(E.MILESTONES + "/m5", T - 1, "Scalars:scalars") == [1.0]  # the expert succeeds
-    # frame 0 is the reset observation of the seed (checked here by resetting a fresh env; the viewer never does)
+    # frame 0 is the reset observation of the seed (checked here by resetting a fresh env; the viewer never
+    # does)
     env = BavoEnv("cube_handoff", "stage", render_mode=None)
     try:
         obs, info = env.reset(seed=0)
@@ -283,15 +378,18 @@ def test_eval_episode_rrd_matches_the_rollout(eval_run):
         env.close()
     np.testing.assert_array_equal(np.asarray(rrd.at(E.CLOUD, 0, "Points3D:positions"), np.float32),
                                   obs["point_cloud"][:, :3])
-    np.testing.assert_allclose(rrd.at(E.CAMERA, 0, "Transform3D:translation")[0], info["camera_pose"][:3, 3], atol=1e-6)
-    np.testing.assert_allclose(_mat3(rrd.at(E.CAMERA, 0, "Transform3D:mat3x3")[0]), info["camera_pose"][:3, :3],
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        rrd.at(E.CAMERA, 0, "Transform3D:translation")[0], info["camera_pose"][:3, 3], atol=1e-6
+    )
+    np.testing.assert_allclose(
+        _mat3(rrd.at(E.CAMERA, 0, "Transform3D:mat3x3")[0]), info["camera_pose"][:3, :3], atol=1e-6
+    )
 
 
 def test_eval_rrd_has_the_policys_predicted_chunks(tmp_path):
-    """A LeRobot checkpoint (the shipped A-FAR) rolled out by bavo-eval's `run_episode` for two chunks: a chunk
-    of n_action_steps (12 shipped) joint targets at frames 0 and n: the actions then sent, and the grippers'
-    paths."""
+    """A LeRobot checkpoint (the shipped A-FAR) rolled out by bavo-eval's `run_episode` for two chunks: a
+    chunk of n_action_steps (12 shipped) joint targets at frames 0 and n: the actions then sent, and the
+    grippers' paths."""
     from lerobot_bavo.demo import SHIPPED_CHECKPOINT
     from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
@@ -320,6 +418,7 @@ def test_eval_rrd_has_the_policys_predicted_chunks(tmp_path):
         tensor = rrd.at(E.CHUNK, k, "Tensor:data")[0]
         chunk = np.asarray(tensor["buffer"], dtype=np.float32).reshape(tensor["shape"])
         assert chunk.shape == (n, 21)
-        np.testing.assert_allclose(chunk, np.stack(sent[k:k + n]), atol=1e-5)  # the chunk is what was then sent
+        # the chunk is what was then sent
+        np.testing.assert_allclose(chunk, np.stack(sent[k:k + n]), atol=1e-5)
         for arm in ("left", "right", "camera"):
             assert np.asarray(rrd.at(f"{E.CHUNK_PATH}/{arm}", k, "LineStrips3D:strips")[0]).shape == (n, 3)

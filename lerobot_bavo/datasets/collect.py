@@ -8,8 +8,8 @@ How it works:
   schedule) and the expert (timing jitter). The dataset holds the first `--episodes` successful
   seeds, in seed order; unsuccessful attempts are discarded and counted.
 - Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no LeRobot or
-  PyTorch import: `WorkerPool(light_import=True)`) record an episode, compute its teacher targets and stage it as
-  `<root>/.bavo_staging/seed_*.npz` plus a `seed_*.json` marker written last (atomic renames). The pool
+  PyTorch import: `WorkerPool(light_import=True)`) record an episode, compute its teacher targets and stage it
+  as `<root>/.bavo_staging/seed_*.npz` plus a `seed_*.json` marker written last (atomic renames). The pool
   starts first, with one warm-up job per worker (`staging.warm_job`: build the recorder), and this process
   imports LeRobot only when it opens the dataset (the `bavo-collect` command imports `lerobot_bavo` without
   registering LeRobot types), so both set-ups run side by side. Workers and this process keep freed memory
@@ -30,9 +30,10 @@ How it works:
   and marks the commit pending in the record; a pending commit found at start-up is rolled back
   (new files deleted, metadata restored) and redone from the staged episodes, which are deleted
   only after the record says they are committed. Finished episodes are never lost or duplicated.
-- The active camera is stored as video (`video_codec.py`): x264 for a new dataset (GOP 2, CRF 20, one thread, SSE4.2
-  SIMD: the same quality as LeRobot's SVT-AV1 for ~4x less CPU, and reproducible bytes), `--vcodec libsvtav1` for
-  LeRobot's AV1 (what earlier versions wrote); a dataset being continued keeps its own codec.
+- The active camera is stored as video (`video_codec.py`): x264 for a new dataset (GOP 2, CRF 20, one thread,
+  SSE4.2 SIMD: the same quality as LeRobot's SVT-AV1 for ~4x less CPU, and reproducible bytes),
+  `--vcodec libsvtav1` for LeRobot's AV1 (what earlier versions wrote); a dataset being continued keeps its
+  own codec.
 - At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`), the
   dataset card (README.md), and optionally `push_to_hub` (needs `huggingface-cli login`).
 
@@ -86,7 +87,8 @@ class SeedScheduler:
         self.next_seed = next_seed  # the first seed not yet resolved
         self.results: dict[int, dict] = dict(staged)  # finished, not yet resolved
         self.in_flight: dict[cf.Future, int] = {}
-        self.receive = receive  # a job's result -> its summary (Ray: writes the shipped files); None: the result
+        # a job's result -> its summary (Ray: writes the shipped files); None: the result
+        self.receive = receive
 
     def resolved(self):
         """Finished summaries in seed order, each removed as it is handed out (stop whenever you like)."""
@@ -159,12 +161,21 @@ class Collector(DatasetSession):
         requested = cfg.episodes
         committed = len(self.record.episodes)
         on_ray = cfg.executor == "ray"
-        sched = SeedScheduler(self.record.next_seed, self.scan_staging(self.record.next_seed),
-                              receive=(lambda shipped: receive_shipped(shipped, self.staging)) if on_ray else None)
+        sched = SeedScheduler(
+            self.record.next_seed,
+            self.scan_staging(self.record.next_seed),
+            receive=(lambda shipped: receive_shipped(shipped, self.staging)) if on_ray else None,
+        )
         job_fn = ship_job if on_ray else run_job
-        run_stats = {"started": time.strftime("%Y-%m-%d %H:%M:%S"), "requested": requested,
-                     "committed_before": committed, "workers": cfg.workers, "executor": cfg.executor, "attempts": 0,
-                     "reused_staged": len(sched.results)}
+        run_stats = {
+            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "requested": requested,
+            "committed_before": committed,
+            "workers": cfg.workers,
+            "executor": cfg.executor,
+            "attempts": 0,
+            "reused_staged": len(sched.results),
+        }
         timings: dict[str, list] = {}
         needed = requested - committed
         discarded = len(self.record.discarded)
@@ -210,13 +221,14 @@ class Collector(DatasetSession):
         return self.finish(run_stats, time.perf_counter() - t_start)
 
     def _pool(self):
-        """Where episodes run: `WorkerPool` (local processes) or `RayPool` (Ray tasks; at most 2 x the cluster's
-        CPUs in flight). Ray is imported only for --executor ray."""
+        """Where episodes run: `WorkerPool` (local processes) or `RayPool` (Ray tasks; at most 2 x the
+        cluster's CPUs in flight). Ray is imported only for --executor ray."""
         if self.cfg.executor == "ray":
             from lerobot_bavo.runtime.ray_pool import RayPool
 
             return RayPool(self.cfg.workers, address=self.cfg.ray_address)
-        return WorkerPool(self.cfg.workers, light_import=True)  # expert episodes: no LeRobot / PyTorch in workers
+        # expert episodes: no LeRobot / PyTorch in workers
+        return WorkerPool(self.cfg.workers, light_import=True)
 
     def _job(self, seed: int) -> dict:
         cfg = self.cfg
@@ -229,14 +241,18 @@ class Collector(DatasetSession):
         bar.set_postfix(discarded=total)
         if total > limit:
             raise CollectionError(
-                f"{total} unsuccessful expert episodes for {kept} kept: the expert for {self.cfg.task!r} under "
-                f"{self.cfg.condition!r} fails too often; aborting")
+                f"{total} unsuccessful expert episodes for {kept} kept: the expert for {self.cfg.task!r} "
+                "under "
+                f"{self.cfg.condition!r} fails too often; aborting"
+            )
 
 
 def _progress(total: int, initial: int, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, initial=initial, unit="ep", desc="episodes", disable=not enabled, dynamic_ncols=True)
+    return tqdm(
+        total=total, initial=initial, unit="ep", desc="episodes", disable=not enabled, dynamic_ncols=True
+    )
 
 
 def collect(cfg: CollectConfig) -> dict:
@@ -255,10 +271,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="visibility condition (the paper trains on stage)")
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted")
     p.add_argument("--repo-id", required=True, help="<user>/<name>, e.g. me/bavo_cube_handoff")
-    p.add_argument("--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)")
-    add_executor_arguments(p, 2, "worker processes (0: in this process)",
-                           "where episode rollouts run: local worker processes (default) or Ray tasks, this process "
-                           "staying the only dataset writer")
+    p.add_argument(
+        "--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)"
+    )
+    add_executor_arguments(
+        p,
+        2,
+        "worker processes (0: in this process)",
+        "where episode rollouts run: local worker processes (default) or Ray tasks, this process "
+        "staying the only dataset writer",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the first attempt")
     p.add_argument("--commit-every", type=int, default=10, help="episodes per dataset write session")
     default = ObservationSettings()  # the observation defaults, in one place
@@ -266,22 +288,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-width", type=int, default=default.image_width)
     p.add_argument("--n-points", type=int, default=default.n_points)
     p.add_argument("--point-frame", default="base", choices=POINT_FRAMES)
-    p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")
-    p.add_argument("--vcodec", default=None, choices=VIDEO_CODECS,
-                   help="codec of the active camera's video: h264 (x264, GOP 2, CRF 20, preset faster; the default "
-                        "for a new dataset: the same quality as AV1 for ~4x less CPU) or libsvtav1 (LeRobot's default "
-                        "AV1: GOP 2, CRF 30, preset 12; what bavo-collect wrote before). Default: h264 for a new "
-                        "dataset, the dataset's own codec when continuing one")
+    p.add_argument(
+        "--episode-length", type=int, default=None, help="control-step limit (default: the task's)"
+    )
+    p.add_argument(
+        "--vcodec",
+        default=None,
+        choices=VIDEO_CODECS,
+        help="codec of the active camera's video: h264 (x264, GOP 2, CRF 20, preset faster; the default "
+        "for a new dataset: the same quality as AV1 for ~4x less CPU) or libsvtav1 (LeRobot's default "
+        "AV1: GOP 2, CRF 30, preset 12; what bavo-collect wrote before). Default: h264 for a new "
+        "dataset, the dataset's own codec when continuing one",
+    )
     p.add_argument("--keep-failures", action="store_true", help="keep unsuccessful episodes (debugging only)")
-    p.add_argument("--execution-noise", type=float, default=0.0, metavar="RAD",
-                   help="DART-style demonstrations: execute the expert's arm joint targets plus a slowly varying "
-                        "random offset of this standard deviation in radians (AR(1), correlation 0.9 per step; "
-                        "grippers and camera untouched) while recording its clean targets, so the data show "
-                        "corrections back to the plan. 0 (default): off. The cube_handoff runs used 0.01")
+    p.add_argument(
+        "--execution-noise",
+        type=float,
+        default=0.0,
+        metavar="RAD",
+        help="DART-style demonstrations: execute the expert's arm joint targets plus a slowly varying "
+        "random offset of this standard deviation in radians (AR(1), correlation 0.9 per step; "
+        "grippers and camera untouched) while recording its clean targets, so the data show "
+        "corrections back to the plan. 0 (default): off. The cube_handoff runs used 0.01",
+    )
     p.add_argument("--execution-noise-clean-contacts", action="store_true",
                    help="with --execution-noise: no noise during the expert's approach/grasp/release phases "
                         "(its `contact_phases`)")
-    p.add_argument("--push-to-hub", action="store_true", help="upload when done (needs `huggingface-cli login`)")
+    p.add_argument(
+        "--push-to-hub", action="store_true", help="upload when done (needs `huggingface-cli login`)"
+    )
     p.add_argument("--private", action="store_true", help="create the Hub repository private")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -297,20 +332,36 @@ def main(argv: list[str] | None = None) -> int:
         if parent is not None and not parent.is_dir():
             parser.error(f"--root {args.root}: {parent} is not a folder")
     argv_text = " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
-    try:  # the flags' checks are CollectConfig's (and ObservationSettings'): one place, reported as usage errors
+    # the flags' checks are CollectConfig's (and ObservationSettings'): one place, reported as usage errors
+    try:
         cfg = CollectConfig(
-            task=args.task, condition=args.condition, episodes=args.episodes, repo_id=args.repo_id, root=args.root,
-            workers=args.workers, executor=args.executor, ray_address=args.ray_address, seed=args.seed,
+            task=args.task,
+            condition=args.condition,
+            episodes=args.episodes,
+            repo_id=args.repo_id,
+            root=args.root,
+            workers=args.workers,
+            executor=args.executor,
+            ray_address=args.ray_address,
+            seed=args.seed,
             commit_every=args.commit_every,
-            settings=ObservationSettings(args.image_height, args.image_width, args.n_points, args.point_frame),
-            episode_length=args.episode_length, keep_failures=args.keep_failures, video_codec=args.vcodec,
-            execution_noise=ExecutionNoise(std=args.execution_noise,
-                                           clean_contacts=args.execution_noise_clean_contacts),
-            push_to_hub=args.push_to_hub, private=True if args.private else None, progress=not args.no_progress,
+            settings=ObservationSettings(
+                args.image_height, args.image_width, args.n_points, args.point_frame
+            ),
+            episode_length=args.episode_length,
+            keep_failures=args.keep_failures,
+            video_codec=args.vcodec,
+            execution_noise=ExecutionNoise(
+                std=args.execution_noise, clean_contacts=args.execution_noise_clean_contacts
+            ),
+            push_to_hub=args.push_to_hub,
+            private=True if args.private else None,
+            progress=not args.no_progress,
             command=f"bavo-collect {argv_text}",
         )
     except ValueError as e:
-        parser.error(str(e))
+        print(f"bavo-collect: error: {e}", file=sys.stderr)
+        return 2
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 (--vcodec libsvtav1): errors only
     quiet_libav()
     from lerobot_bavo.runtime.process import retain_freed_memory
@@ -331,8 +382,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bavo-collect: error: {e}", file=sys.stderr)
         return 2
     print(json.dumps(summary, indent=1))
-    print(f"kept {summary['episodes']} episodes ({summary['frames']} frames), discarded {summary['discarded']} "
-          f"unsuccessful attempts; dataset at {summary['root']}")
+    print(
+        f"kept {summary['episodes']} episodes ({summary['frames']} frames), discarded {summary['discarded']} "
+        f"unsuccessful attempts; dataset at {summary['root']}"
+    )
     return 0
 
 

@@ -31,8 +31,8 @@ class CollectConfig:
         workers: worker processes; 0 runs episodes in this process (tests, debugging). With executor "ray" and
             no ray_address: the CPUs of the private local Ray (>= 1).
         executor: "local" (`WorkerPool`) or "ray" (`RayPool`: episode rollouts as Ray tasks).
-        ray_address: with executor "ray", the cluster to use (`ray start --head` prints it); None: a private Ray.
-        seed: seed of the first attempt (demonstration seeds should stay clear of eval seeds, 1000+).
+        ray_address: with executor "ray", the cluster to use (`ray start --head` prints it); None: a private
+        Ray. seed: seed of the first attempt (demonstration seeds should stay clear of eval seeds, 1000+).
         commit_every: episodes appended per LeRobot writer session (resume granularity).
         settings: observation settings (image size, points, frame, fovy).
         episode_length: control-step limit per episode (None: the task's own).
@@ -40,7 +40,8 @@ class CollectConfig:
         execution_noise: DART-style noise on the executed arm joint targets; the dataset records the
             expert's clean actions (`experts/perturbation.py`). Off by default.
         use_videos: store the active image as video.
-        video_codec: that video's codec (`datasets/video_codec.py`): "h264" or "libsvtav1" (LeRobot's default AV1).
+        video_codec: that video's codec (`datasets/video_codec.py`): "h264" or "libsvtav1" (LeRobot's default
+        AV1).
             None: "h264" for a new dataset, the dataset's own codec when continuing one.
         push_to_hub, private: upload when done.
         max_discard_ratio: abort when more than this many discards per wanted episode (plus 10) occur.
@@ -113,8 +114,13 @@ class CollectConfig:
             "use_videos": self.use_videos,
             # Only when not the codec of datasets made before the choice existed (their records name none).
             **video_codec_record_entry(video_codec, self.use_videos),
-            "teacher": {"name": "simulator-exact", "clip_length": S.CLIP_LENGTH, "anchor_index": S.ANCHOR_INDEX,
-                        "n_future": S.N_FUTURE, "visibility_tol_m": 0.01},
+            "teacher": {
+                "name": "simulator-exact",
+                "clip_length": S.CLIP_LENGTH,
+                "anchor_index": S.ANCHOR_INDEX,
+                "n_future": S.N_FUTURE,
+                "visibility_tol_m": 0.01,
+            },
         }
 
 

@@ -66,10 +66,16 @@ class CollectionRecord:
         known = {f.name for f in dataclasses.fields(cls)} - {"extra"}
         pending = d.get("pending_commit")
         return cls(
-            repo_id=d.get("repo_id", ""), settings=d["settings"], episodes=list(d.get("episodes", [])),
-            discarded=list(d.get("discarded", [])), next_seed=int(d.get("next_seed", 0)),
-            pending_commit=PendingCommit(list(pending["seeds"]), int(pending["next_seed"])) if pending else None,
-            runs=list(d.get("runs", [])), complete=bool(d.get("complete", False)),
+            repo_id=d.get("repo_id", ""),
+            settings=d["settings"],
+            episodes=list(d.get("episodes", [])),
+            discarded=list(d.get("discarded", [])),
+            next_seed=int(d.get("next_seed", 0)),
+            pending_commit=PendingCommit(list(pending["seeds"]), int(pending["next_seed"]))
+            if pending
+            else None,
+            runs=list(d.get("runs", [])),
+            complete=bool(d.get("complete", False)),
             extra={k: v for k, v in d.items() if k not in known and k != "format"},
         )
 
@@ -83,7 +89,8 @@ class CollectionRecord:
 
     @classmethod
     def load(cls, root: Path) -> CollectionRecord | None:
-        """The record of the dataset at `root`, None if it has none; a malformed one raises naming the file."""
+        """The record of the dataset at `root`, None if it has none; a malformed one raises naming the
+        file."""
         from lerobot_bavo.datasets.metadata import read_sidecar
 
         d = read_sidecar(root)

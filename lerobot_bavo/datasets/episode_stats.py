@@ -116,7 +116,9 @@ def writer_stats_inputs(columns: dict[str, np.ndarray]) -> tuple[dict[str, np.nd
     return data, features
 
 
-def compute_episode_stats(episode_data: dict, features: dict, quantile_list: list[float] | None = None) -> dict:
+def compute_episode_stats(
+    episode_data: dict, features: dict, quantile_list: list[float] | None = None
+) -> dict:
     """`lerobot.datasets.compute_stats.compute_episode_stats` with `vector_stats` for numeric features."""
     from lerobot.datasets import compute_stats as lerobot_stats
 
@@ -129,7 +131,9 @@ def compute_episode_stats(episode_data: dict, features: dict, quantile_list: lis
             continue
         if dtype in ("image", "video") or not isinstance(data, np.ndarray) or data.ndim not in (1, 2) \
                 or data.shape[0] < 2 or not (np.issubdtype(data.dtype, np.number) or data.dtype == bool):
-            stats.update(lerobot_stats.compute_episode_stats({key: data}, {key: features[key]}, quantile_list))
+            stats.update(
+                lerobot_stats.compute_episode_stats({key: data}, {key: features[key]}, quantile_list)
+            )
         else:
             stats[key] = vector_stats(data)
     return stats

@@ -93,7 +93,9 @@ class InMemoryReader:
     def __init__(self, reader):
         self._reader = reader
         table = reader.hf_dataset.data
-        self.columns = {name: torch.from_numpy(column_array(table.column(name))) for name in table.column_names}
+        self.columns = {
+            name: torch.from_numpy(column_array(table.column(name))) for name in table.column_names
+        }
         meta = reader_metadata(reader)
         # Episode bounds in absolute frame indices, as LeRobot's `_get_query_indices` reads them.
         eps = meta.episodes
@@ -103,7 +105,9 @@ class InMemoryReader:
         self._abs = abs_idx
         # absolute -> relative row (episode-filtered datasets hold a subset of rows): a dense lookup table
         self._first = int(abs_idx[0]) if len(abs_idx) else 0
-        self._contiguous = bool(len(abs_idx) == 0 or torch.equal(abs_idx, torch.arange(self._first, self._first + len(abs_idx))))
+        self._contiguous = bool(
+            len(abs_idx) == 0 or torch.equal(abs_idx, torch.arange(self._first, self._first + len(abs_idx)))
+        )
         self._rel = None
         if not self._contiguous:
             self._rel = torch.full((int(abs_idx.max()) - self._first + 1,), -1, dtype=torch.int64)
@@ -125,8 +129,8 @@ class InMemoryReader:
         return self._rel[absolute - self._first]
 
     def get_batch(self, indices) -> dict:
-        """The items of relative rows `indices`, stacked: each key (B, ...), `<key>_is_pad` (B, K), and `task` a
-        list of B strings. One gather per column for the whole batch."""
+        """The items of relative rows `indices`, stacked: each key (B, ...), `<key>_is_pad` (B, K), and `task`
+        a list of B strings. One gather per column for the whole batch."""
         idx = torch.as_tensor(np.asarray(indices, dtype=np.int64)).reshape(-1)
         cols = self.columns
         batch = {key: col[idx] for key, col in cols.items()}
@@ -144,8 +148,8 @@ class InMemoryReader:
         return batch
 
     def get_items(self, indices) -> list[dict]:
-        """LeRobot's items for relative rows `indices` (what a DataLoader batch asks for), gathered in one step
-        (`get_batch`) and handed out as per-item views for the DataLoader's collate function."""
+        """LeRobot's items for relative rows `indices` (what a DataLoader batch asks for), gathered in one
+        step (`get_batch`) and handed out as per-item views for the DataLoader's collate function."""
         batch = self.get_batch(indices)
         keys = list(batch)
         return [{k: batch[k][i] for k in keys} for i in range(len(batch["task"]))]
@@ -177,8 +181,8 @@ def in_memory_dataset_class():
     `use_in_memory_reader` accepts it, and which hands a DataLoader whole batches (`__getitems__`).
 
     Built on first use (it subclasses LeRobot's class, and `import lerobot_bavo` must not import LeRobot) and
-    reachable as `lerobot_bavo.datasets.fast.InMemoryLeRobotDataset`, so that pickle finds it in the DataLoader
-    workers LeRobot starts with `spawn`.
+    reachable as `lerobot_bavo.datasets.fast.InMemoryLeRobotDataset`, so that pickle finds it in the
+    DataLoader workers LeRobot starts with `spawn`.
     """
     global _IN_MEMORY_CLASS
     if _IN_MEMORY_CLASS is not None:
@@ -192,8 +196,11 @@ def in_memory_dataset_class():
             use_in_memory_reader(self)
 
         def __getitems__(self, indices: list[int]) -> list[dict]:
-            """A DataLoader batch in one gather (torch's fetcher calls this instead of `__getitem__` per index)."""
-            if isinstance(self.reader, InMemoryReader) and (self.writer is None or dataset_is_finalized(self)):
+            """A DataLoader batch in one gather (torch's fetcher calls this instead of `__getitem__` per
+            index)."""
+            if isinstance(self.reader, InMemoryReader) and (
+                self.writer is None or dataset_is_finalized(self)
+            ):
                 return self.reader.get_items(indices)
             return [self[i] for i in indices]
 
@@ -212,12 +219,13 @@ def __getattr__(name: str):
 
 
 def install_lerobot_train_hook() -> bool:
-    """Make the `LeRobotDataset`s built by LeRobot's dataset factory (`lerobot-train`) use the in-memory reader.
+    """Make the `LeRobotDataset`s built by LeRobot's dataset factory (`lerobot-train`) use the in-memory
+    reader.
 
     The factory module (`lerobot.datasets.factory`) looks `LeRobotDataset` up as a module global when it
     builds the train (and eval) datasets; it is replaced there, and only there, by `InMemoryLeRobotDataset`,
-    which swaps the reader after LeRobot's own constructor ran (`lerobot_private.install_dataset_class`). Idempotent; does nothing with
-    `BAVO_FAST_DATASET=0`.
+    which swaps the reader after LeRobot's own constructor ran (`lerobot_private.install_dataset_class`).
+    Idempotent; does nothing with `BAVO_FAST_DATASET=0`.
     """
     if os.environ.get(ENV_OPT_OUT, "1").strip().lower() in ("0", "false", "no", "off"):
         return False

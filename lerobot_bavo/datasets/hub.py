@@ -73,7 +73,9 @@ def load_bavo_dataset(repo_id: str, root: str | Path | None = None, n_points: in
     except (FileNotFoundError, ValueError):
         raise
     except Exception as e:
-        raise ValueError(f"LeRobot could not load dataset {repo_id!r} from {local}: {type(e).__name__}: {e}") from e
+        raise ValueError(
+            f"LeRobot could not load dataset {repo_id!r} from {local}: {type(e).__name__}: {e}"
+        ) from e
     S.check_features(ds.meta.features, n_points=n_points, require_teacher=require_teacher)
     return ds
 
@@ -125,7 +127,9 @@ def push_dataset(root: str | Path, repo_id: str, private: bool | None = None, pu
     root = Path(root)
     sidecar = read_sidecar(root)
     if sidecar is not None and sidecar.get("pending_commit"):
-        raise ValueError(f"{root} has an unfinished commit: re-run `bavo-collect` with the same arguments first")
+        raise ValueError(
+            f"{root} has an unfinished commit: re-run `bavo-collect` with the same arguments first"
+        )
     ds = load_bavo_dataset(repo_id, root=root)
     kwargs = card_kwargs_for(root, repo_id) if card_kwargs is None else card_kwargs
     ds.push_to_hub(private=private, push_videos=push_videos, allow_patterns=PUSH_PATTERNS, **kwargs)

@@ -60,9 +60,11 @@ READER_FIELDS = ("_meta", "_image_transforms")  # DatasetReader internals the fa
 CONFIG_MODULE_ATTRIBUTES = ("tempfile",)  # lerobot.configs.policies
 FACTORY_MODULE_ATTRIBUTES = ("LeRobotDataset",)  # lerobot.datasets.factory
 WRITER_MODULE_ATTRIBUTES = ("embed_images", "compute_episode_stats", "datasets")
-STATS_MODULE_ATTRIBUTES = ("RunningQuantileStats",)  # lerobot.datasets.compute_stats, read by the encoder thread
+# lerobot.datasets.compute_stats, read by the encoder thread
+STATS_MODULE_ATTRIBUTES = ("RunningQuantileStats",)
 STATS_FIELDS = ("_count", "_mean", "_mean_of_squares", "_min", "_max", "_histograms", "_bin_edges",
-                "_num_quantile_bins", "_adjust_histograms")  # RunningQuantileStats internals DeferredFrameStats uses
+                # RunningQuantileStats internals DeferredFrameStats uses
+                "_num_quantile_bins", "_adjust_histograms")
 
 
 class LeRobotInternalsChanged(RuntimeError):
@@ -81,10 +83,18 @@ def check_private_api(dataset=None) -> None:
     import lerobot.datasets.dataset_writer as writer_mod
     import lerobot.datasets.factory as factory_mod
 
-    missing = [f"lerobot.datasets.dataset_writer.{a}" for a in WRITER_MODULE_ATTRIBUTES if not hasattr(writer_mod, a)]
-    missing += [f"lerobot.configs.policies.{a}" for a in CONFIG_MODULE_ATTRIBUTES if not hasattr(config_mod, a)]
-    missing += [f"lerobot.datasets.factory.{a}" for a in FACTORY_MODULE_ATTRIBUTES if not hasattr(factory_mod, a)]
-    missing += [f"lerobot.datasets.compute_stats.{a}" for a in STATS_MODULE_ATTRIBUTES if not hasattr(stats_mod, a)]
+    missing = [
+        f"lerobot.datasets.dataset_writer.{a}" for a in WRITER_MODULE_ATTRIBUTES if not hasattr(writer_mod, a)
+    ]
+    missing += [
+        f"lerobot.configs.policies.{a}" for a in CONFIG_MODULE_ATTRIBUTES if not hasattr(config_mod, a)
+    ]
+    missing += [
+        f"lerobot.datasets.factory.{a}" for a in FACTORY_MODULE_ATTRIBUTES if not hasattr(factory_mod, a)
+    ]
+    missing += [
+        f"lerobot.datasets.compute_stats.{a}" for a in STATS_MODULE_ATTRIBUTES if not hasattr(stats_mod, a)
+    ]
     if hasattr(stats_mod, "RunningQuantileStats"):
         probe = stats_mod.RunningQuantileStats()
         probe.update(np.zeros((2, 3), dtype=np.float32))
@@ -97,7 +107,9 @@ def check_private_api(dataset=None) -> None:
             missing += [f"DatasetWriter.{f}" for f in WRITER_FIELDS if not hasattr(writer, f)]
             if not hasattr(writer, "cancel_pending_videos"):
                 missing.append("DatasetWriter.cancel_pending_videos")
-        missing += [f"LeRobotDatasetMetadata.{f}" for f in META_FIELDS if meta is None or not hasattr(meta, f)]
+        missing += [
+            f"LeRobotDatasetMetadata.{f}" for f in META_FIELDS if meta is None or not hasattr(meta, f)
+        ]
         missing += [f"LeRobotDataset.{f}" for f in DATASET_FIELDS if not hasattr(dataset, f)]
         reader = getattr(dataset, "reader", None)
         if reader is not None:  # a writer session may have no reader yet
@@ -195,7 +207,9 @@ class _ArrowDataset:
         table = arrow_table_of(mapping, features) if info is None else None
         if table is None:
             return datasets.Dataset.from_dict(mapping, features=features, info=info, split=split)
-        return datasets.Dataset(InMemoryTable(table), info=datasets.DatasetInfo(features=features), split=split)
+        return datasets.Dataset(
+            InMemoryTable(table), info=datasets.DatasetInfo(features=features), split=split
+        )
 
     def __getattr__(self, name):  # pragma: no cover - LeRobot's writer uses only from_dict
         import datasets
@@ -213,7 +227,11 @@ def arrow_table_of(mapping: dict, features):
     import datasets
     import pyarrow as pa
 
-    if not isinstance(features, datasets.Features) or not isinstance(mapping, dict) or set(mapping) != set(features):
+    if (
+        not isinstance(features, datasets.Features)
+        or not isinstance(mapping, dict)
+        or set(mapping) != set(features)
+    ):
         return None
     schema = features.arrow_schema
     arrays, n = [], None
@@ -223,7 +241,8 @@ def arrow_table_of(mapping: dict, features):
             return None
         if n is None:
             n = value.shape[0]
-        if value.shape[0] != n or n == 0:  # (LeRobot never saves an empty episode; datasets' own path decides)
+        # (LeRobot never saves an empty episode; datasets' own path decides)
+        if value.shape[0] != n or n == 0:
             return None
         if pa.types.is_fixed_size_list(typ):
             item = typ.value_type

@@ -24,8 +24,10 @@ def read_info(root: str | Path) -> dict:
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"corrupted dataset metadata {path}: not valid JSON ({e})") from e
     if not isinstance(info, dict) or not isinstance(info.get("features"), dict):
-        raise ValueError(f"corrupted dataset metadata {path}: no 'features' object (got "
-                         f"{type(info.get('features')).__name__ if isinstance(info, dict) else type(info).__name__})")
+        raise ValueError(
+            f"corrupted dataset metadata {path}: no 'features' object (got "
+            f"{type(info.get('features')).__name__ if isinstance(info, dict) else type(info).__name__})"
+        )
     version = info.get("codebase_version")
     if version != CODEBASE_VERSION:
         raise ValueError(f"{path}: dataset format {version!r}, expected LeRobot {CODEBASE_VERSION!r}")
@@ -48,7 +50,9 @@ def read_stats(root: str | Path, check_nan: bool = True) -> dict:
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"corrupted dataset statistics {path}: not valid JSON ({e})") from e
     if not isinstance(stats, dict):
-        raise ValueError(f"corrupted dataset statistics {path}: expected an object, got {type(stats).__name__}")
+        raise ValueError(
+            f"corrupted dataset statistics {path}: expected an object, got {type(stats).__name__}"
+        )
 
     if not check_nan:
         return stats

@@ -79,15 +79,23 @@ class EpisodeRecorder:
         episode_length: control-step limit (None: the task's own); truncated episodes fail.
     """
 
-    def __init__(self, task: str, condition: str, settings: ObservationSettings, episode_length: int | None = None):
+    def __init__(
+        self, task: str, condition: str, settings: ObservationSettings, episode_length: int | None = None
+    ):
         from lerobot_bavo.envs.bavo_env import BavoEnv
         from lerobot_bavo.sim.rendering import SceneRenderer
 
         self.task, self.condition, self.settings = task, condition, settings
         self.env = BavoEnv(
-            task=task, condition=condition, image_height=settings.image_height, image_width=settings.image_width,
-            n_points=settings.n_points, point_frame=settings.point_frame, fovy=settings.fovy,
-            episode_length=episode_length, render_mode=None,
+            task=task,
+            condition=condition,
+            image_height=settings.image_height,
+            image_width=settings.image_width,
+            n_points=settings.n_points,
+            point_frame=settings.point_frame,
+            fovy=settings.fovy,
+            episode_length=episode_length,
+            render_mode=None,
         )
         model = self.env.model
         self._camera_id = model.camera(C.ACTIVE_CAMERA).id
@@ -117,12 +125,33 @@ class EpisodeRecorder:
         obs, info = env.reset(seed=seed)
         expert = make_expert(env, seed=seed) if agent is None else agent
         expert.reset()
-        noise = execution_noise.process(seed) if execution_noise is not None and execution_noise.enabled else None
+        noise = (
+            execution_noise.process(seed) if execution_noise is not None and execution_noise.enabled else None
+        )
         task = env.task
-        rows: dict[str, list] = {k: [] for k in (
-            "state", "action", "rgb", "point_cloud", "point_pixels", "camera_pose", "environment_state", "progress", "occlusion_event",
-            "event_start", "occlusion_active", "occlusion_target", "visibility", "depth", "body_seg", "body_xpos",
-            "body_xmat", "occluder_pose")}
+        rows: dict[str, list] = {
+            k: []
+            for k in (
+                "state",
+                "action",
+                "rgb",
+                "point_cloud",
+                "point_pixels",
+                "camera_pose",
+                "environment_state",
+                "progress",
+                "occlusion_event",
+                "event_start",
+                "occlusion_active",
+                "occlusion_target",
+                "visibility",
+                "depth",
+                "body_seg",
+                "body_xpos",
+                "body_xmat",
+                "occluder_pose",
+            )
+        }
         target_stage = -1
         t_render = 0.0
         while True:
@@ -156,12 +185,15 @@ class EpisodeRecorder:
                 rows["occlusion_target"].append(target_stage)
                 vis = occ["visibility"]
                 rows["visibility"].append(-1.0 if vis is None else float(vis))
-                rows["occluder_pose"].append(np.concatenate([occ["event"]["occluder_pos"], occ["event"]["occluder_quat"]]))
+                rows["occluder_pose"].append(
+                    np.concatenate([occ["event"]["occluder_pos"], occ["event"]["occluder_quat"]])
+                )
             # a_t
             action = np.asarray(expert.act(obs, info), dtype=np.float32)
             rows["action"].append(action)
             rows["occlusion_active"].append(float(expert.recovering))
-            if noise is not None:  # DART: execute the perturbed targets, keep the clean ones (contact phases stay clean)
+            # DART: execute the perturbed targets, keep the clean ones (contact phases stay clean)
+            if noise is not None:
                 action = noise.perturb(action, quiet=execution_noise.quiet_for(expert))
             obs, _, terminated, truncated, info = env.step(action)
             if terminated or truncated or getattr(expert, "stop_requested", False):
@@ -169,20 +201,30 @@ class EpisodeRecorder:
         arrays = {k: np.stack(v) for k, v in rows.items()}
         wall = time.perf_counter() - t0
         return EpisodeRecord(
-            task=self.task, condition=self.condition, seed=int(seed), success=bool(info["is_success"]),
+            task=self.task,
+            condition=self.condition,
+            seed=int(seed),
+            success=bool(info["is_success"]),
             final_progress=int(info["progress"]),
-            state=arrays["state"].astype(np.float32), action=arrays["action"].astype(np.float32),
-            rgb=arrays["rgb"], point_cloud=arrays["point_cloud"].astype(np.float32),
-            point_pixels=arrays["point_pixels"].astype(np.int32), camera_pose=arrays["camera_pose"],
+            state=arrays["state"].astype(np.float32),
+            action=arrays["action"].astype(np.float32),
+            rgb=arrays["rgb"],
+            point_cloud=arrays["point_cloud"].astype(np.float32),
+            point_pixels=arrays["point_pixels"].astype(np.int32),
+            camera_pose=arrays["camera_pose"],
             environment_state=arrays["environment_state"].astype(np.float32),
-            progress=arrays["progress"].astype(np.int64), occlusion_event=arrays["occlusion_event"].astype(np.int64),
+            progress=arrays["progress"].astype(np.int64),
+            occlusion_event=arrays["occlusion_event"].astype(np.int64),
             event_start=arrays["event_start"].astype(np.float32),
             occlusion_active=arrays["occlusion_active"].astype(np.float32),
             occlusion_target=arrays["occlusion_target"].astype(np.int64),
             visibility=arrays["visibility"].astype(np.float32),
             occluder_pose=arrays["occluder_pose"].astype(np.float32),
-            depth=arrays["depth"], body_seg=arrays["body_seg"], body_xpos=arrays["body_xpos"],
-            body_xmat=arrays["body_xmat"], K=self.K.copy(),
+            depth=arrays["depth"],
+            body_seg=arrays["body_seg"],
+            body_xpos=arrays["body_xpos"],
+            body_xmat=arrays["body_xmat"],
+            K=self.K.copy(),
             timings={"episode_s": wall, "segmentation_s": t_render},
             recoveries=len(getattr(expert, "recoveries", [])),
             source=getattr(expert, "source", "expert"),
@@ -191,8 +233,8 @@ class EpisodeRecorder:
     def _privileged_view(self) -> tuple[np.ndarray, np.ndarray]:
         """(geom id per pixel, z-depth) of the current state, from one segmentation pass with depth readback.
 
-        Reusing the observation's own depth (`BavoEnv.observation_depth`) instead was tried for issue 11: it is
-        bit-identical at 48 x 64 (`tests/test_datasets.py`, `tests/test_collect_content.py`), but
+        Reusing the observation's own depth (`BavoEnv.observation_depth`) instead was tried for issue 11: it
+        is bit-identical at 48 x 64 (`tests/test_datasets.py`, `tests/test_collect_content.py`), but
         `benchmarks/collect_throughput.py --compare-paths` at 240 x 320 reported non-identical privileged
         arrays (not yet diagnosed), so the readback stays until that is understood.
         """

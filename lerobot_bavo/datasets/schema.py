@@ -10,26 +10,42 @@ Features (N = points per cloud, H x W = active image size; all per frame, 25 fps
 
 | key | shape | dtype | meaning |
 |---|---|---|---|
-| observation.state | (21,) | float32 | joint state: left 6 + gripper, right 6 + gripper, camera arm 7 (rad; grippers 0 closed .. 1 open) |
+| observation.state | (21,) | float32 | joint state: left 6 + gripper, right 6 + gripper, camera arm 7 (rad;
+grippers 0 closed .. 1 open) |
 | action | (21,) | float32 | absolute joint targets, same order, sent after observing this frame |
 | observation.images.active | (H, W, 3) | video | active-camera RGB |
-| observation.point_cloud | (N*6,) | float32 | (N, 6) row-major: xyz (m, base frame unless `point_frame="camera"`) + rgb in [0, 1] |
-| observation.point_pixels | (N*2,) | float32 | (N, 2) row-major: source pixel (u = column, v = row) of each point; -1 if the view was empty |
-| observation.camera_pose | (16,) | float32 | T_B<-C (4, 4) row-major, OpenCV camera axes (x right, y down, z forward) |
-| observation.environment_state | (7 K,) | float32 | privileged: the task's K object poses (xyz m, base frame; wxyz quaternion), as AV-ALOHA's `environment_state`; only for privileged-state policies (absent from datasets collected before it existed) |
-| observation.teacher.z0 | (N*3,) | float32 | (N, 3): teacher answer to q0 = (u, v, t, t, t) (see `lerobot_bavo.teacher`) |
+| observation.point_cloud | (N*6,) | float32 | (N, 6) row-major: xyz (m, base frame unless
+`point_frame="camera"`) + rgb in [0, 1] |
+| observation.point_pixels | (N*2,) | float32 | (N, 2) row-major: source pixel (u = column, v = row) of each
+point; -1 if the view was empty |
+| observation.camera_pose | (16,) | float32 | T_B<-C (4, 4) row-major, OpenCV camera axes (x right, y down, z
+forward) |
+| observation.environment_state | (7 K,) | float32 | privileged: the task's K object poses (xyz m, base frame;
+wxyz quaternion), as AV-ALOHA's `environment_state`; only for privileged-state policies (absent from datasets
+collected before it existed) |
+| observation.teacher.z0 | (N*3,) | float32 | (N, 3): teacher answer to q0 = (u, v, t, t, t) (see
+`lerobot_bavo.teacher`) |
 | observation.teacher.zf | (N*3,) | float32 | (N, 3): teacher answer to qF = (u, v, t, t+15, t+15) |
-| observation.teacher.visible | (N,) | float32 | 1 if the queried point is the first surface seen along its ray at t+15, else 0 |
-| observation.teacher.valid | (1,) | float32 | 1 if frame t+15 exists in the episode; 0 where it was clamped to the last frame |
+| observation.teacher.visible | (N,) | float32 | 1 if the queried point is the first surface seen along its
+ray at t+15, else 0 |
+| observation.teacher.valid | (1,) | float32 | 1 if frame t+15 exists in the episode; 0 where it was clamped
+to the last frame |
 | annotation.progress | (1,) | int64 | milestone depth d in 0..5 reached at this frame |
-| annotation.occlusion_event | (1,) | int64 | index of the current occlusion event (0, 1, 2 under Stage), -1 if none |
-| annotation.event_start | (1,) | float32 | 1 at the frame where an occlusion event starts (the occluder was just placed) |
-| annotation.occlusion_active | (1,) | float32 | 1 while the demonstrator is recovering the view after an event (its action at this frame is a recovery move) |
-| annotation.occlusion_target | (1,) | int64 | stage index s of the event's target, i.e. the target is `task.stage_targets[s]`; -1 if none |
-| annotation.visibility | (1,) | float32 | visibility ratio V of the current target in [0, 1] (privileged render); -1 under Clean |
+| annotation.occlusion_event | (1,) | int64 | index of the current occlusion event (0, 1, 2 under Stage), -1
+if none |
+| annotation.event_start | (1,) | float32 | 1 at the frame where an occlusion event starts (the occluder was
+just placed) |
+| annotation.occlusion_active | (1,) | float32 | 1 while the demonstrator is recovering the view after an
+event (its action at this frame is a recovery move) |
+| annotation.occlusion_target | (1,) | int64 | stage index s of the event's target, i.e. the target is
+`task.stage_targets[s]`; -1 if none |
+| annotation.visibility | (1,) | float32 | visibility ratio V of the current target in [0, 1] (privileged
+render); -1 under Clean |
 | annotation.episode_seed | (1,) | int64 | the env / expert seed of the episode |
-| annotation.source | (1,) | int64 | who demonstrated the episode: 0 = scripted expert (`bavo-collect`), 1 = human (`bavo-teleop`); absent from datasets collected before it existed |
-| annotation.occluder_pose | (7,) | float32 | the occluder panel's centre (m, base frame) and wxyz quaternion at this frame; all 0 when there is none (Clean); absent from datasets collected before it existed |
+| annotation.source | (1,) | int64 | who demonstrated the episode: 0 = scripted expert (`bavo-collect`), 1 =
+human (`bavo-teleop`); absent from datasets collected before it existed |
+| annotation.occluder_pose | (7,) | float32 | the occluder panel's centre (m, base frame) and wxyz quaternion
+at this frame; all 0 when there is none (Clean); absent from datasets collected before it existed |
 
 `annotation.*` columns are kept in the dataset but never reach a policy: LeRobot's
 `dataset_to_policy_features` types only `observation.*` and `action*` keys, and
@@ -91,7 +107,9 @@ def joint_names() -> list[str]:
     return list(C.ACTION_NAMES)
 
 
-def build_features(settings: ObservationSettings, use_videos: bool = True, env_state_dim: int = 0) -> dict[str, dict]:
+def build_features(
+    settings: ObservationSettings, use_videos: bool = True, env_state_dim: int = 0
+) -> dict[str, dict]:
     """LeRobot feature dict (for `LeRobotDataset.create`) of a BAVO dataset with these settings.
 
     `env_state_dim` > 0 adds `observation.environment_state` (the task's object poses, 7 per object;
@@ -131,10 +149,14 @@ def build_features(settings: ObservationSettings, use_videos: bool = True, env_s
     return features
 
 
-def expected_shapes(n_points: int, image_hw: tuple[int, int] | None = None) -> dict[str, tuple[tuple[int, ...], str]]:
+def expected_shapes(
+    n_points: int, image_hw: tuple[int, int] | None = None
+) -> dict[str, tuple[tuple[int, ...], str]]:
     """(shape, dtype) of every BAVO feature for `n_points` (the image entry only if `image_hw`)."""
     default = ObservationSettings()
-    settings = ObservationSettings(*(image_hw or (default.image_height, default.image_width)), n_points=n_points)
+    settings = ObservationSettings(
+        *(image_hw or (default.image_height, default.image_width)), n_points=n_points
+    )
     out = {k: (tuple(ft["shape"]), ft["dtype"]) for k, ft in build_features(settings).items()}
     if image_hw is None:
         out.pop(OBS_IMAGE)
@@ -172,7 +194,11 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
     expected = expected_shapes(found)
     if OBS_IMAGE in features:
         ft = features[OBS_IMAGE]
-        if ft["dtype"] not in ("video", "image") or len(tuple(ft["shape"])) != 3 or tuple(ft["shape"])[2] != 3:
+        if (
+            ft["dtype"] not in ("video", "image")
+            or len(tuple(ft["shape"])) != 3
+            or tuple(ft["shape"])[2] != 3
+        ):
             raise ValueError(f"feature {OBS_IMAGE!r} must be an (H, W, 3) video or image, got {dict(ft)}")
     else:
         raise ValueError(f"missing feature {OBS_IMAGE!r}")
@@ -187,7 +213,9 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
         shapes = {k: tuple(features[k]["shape"]) for k in (TEACHER_Z0, TEACHER_ZF) if k in features}
         for key, shape in shapes.items():
             if len(shape) != 1 or shape[0] % found or shape[0] == 0:
-                raise ValueError(f"feature {key!r} has shape {shape}, expected (N * d_T,) with N = {found} points")
+                raise ValueError(
+                    f"feature {key!r} has shape {shape}, expected (N * d_T,) with N = {found} points"
+                )
         if len(set(shapes.values())) > 1:
             raise ValueError(f"teacher features must be point-aligned with the same width: {shapes}")
         d = next(iter(shapes.values()))[0] // found
@@ -208,7 +236,9 @@ def check_features(features: Mapping[str, Mapping], n_points: int | None = None,
             raise ValueError(f"missing feature {key!r} (expected shape {shape}, dtype {dtype})")
         got_shape, got_dtype = tuple(features[key]["shape"]), features[key]["dtype"]
         if got_shape != shape:
-            raise ValueError(f"feature {key!r} has shape {got_shape}, expected {shape} for N = {found} points")
+            raise ValueError(
+                f"feature {key!r} has shape {got_shape}, expected {shape} for N = {found} points"
+            )
         if got_dtype != dtype:
             raise ValueError(f"feature {key!r} has dtype {got_dtype!r}, expected {dtype!r}")
     return found
@@ -299,7 +329,8 @@ def _quantiles(by_channel: np.ndarray, quantiles: list[float]) -> np.ndarray:
     return np.concatenate(parts, axis=1)
 
 
-_STATS_BLOCK_ROWS = 1 << 18  # rows of squared deviations held at a time by `channel_stats` (12 MB for 6 channels)
+# rows of squared deviations held at a time by `channel_stats` (12 MB for 6 channels)
+_STATS_BLOCK_ROWS = 1 << 18
 
 
 def tile_channel_stats(stats: dict[str, np.ndarray], n_points: int) -> dict[str, np.ndarray]:

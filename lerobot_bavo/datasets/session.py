@@ -31,11 +31,13 @@ logger = logging.getLogger("bavo-collect")
 
 
 class DatasetSession:
-    """One run's hold on one BAVO dataset folder: its lock, collection record, staging folder and writer-session
-    snapshot, and the steps every writer of the dataset takes (the public seam of the collection pipeline).
+    """One run's hold on one BAVO dataset folder: its lock, collection record, staging folder and
+    writer-session snapshot, and the steps every writer of the dataset takes (the public seam of the
+    collection pipeline).
 
     `bavo-collect` (`collect.Collector`, a subclass that adds the worker pool and the seed scheduler), the
-    writer (`writer.WriterSession` / `StreamingWriter`) and `bavo-teleop` (`teleop.session.HumanDataset`) all go
+    writer (`writer.WriterSession` / `StreamingWriter`) and `bavo-teleop` (`teleop.session.HumanDataset`) all
+    go
     through these methods:
 
     - `lock()` takes the folder's exclusive lock (close it when done);
@@ -74,26 +76,40 @@ class DatasetSession:
         info_path = self.root / "meta" / "info.json"
         if not info_path.exists():
             if self.root.exists() and any(p.name != STAGING for p in self.root.iterdir()):
-                raise CollectionError(f"{self.root} exists and is not a LeRobot dataset; choose another --root")
+                raise CollectionError(
+                    f"{self.root} exists and is not a LeRobot dataset; choose another --root"
+                )
             if self.root.exists():
                 shutil.rmtree(self.root)
             from lerobot_bavo.envs.tasks import environment_state_dim
 
             features = S.build_features(self.cfg.settings, use_videos=self.cfg.use_videos,
                                         env_state_dim=environment_state_dim(self.cfg.task))
-            ds = LeRobotDataset.create(self.cfg.repo_id, S.FPS, features, root=self.root, robot_type="bavo_av_aloha",
-                                       use_videos=self.cfg.use_videos, rgb_encoder=rgb_encoder(self.video_codec))
+            ds = LeRobotDataset.create(
+                self.cfg.repo_id,
+                S.FPS,
+                features,
+                root=self.root,
+                robot_type="bavo_av_aloha",
+                use_videos=self.cfg.use_videos,
+                rgb_encoder=rgb_encoder(self.video_codec),
+            )
             ds.finalize()
             del ds
         record = CollectionRecord.load(self.root)
         info = read_info(self.root)
-        read_stats(self.root, check_nan=False)  # LeRobot.resume would fail on it later with a bare JSONDecodeError
+        # LeRobot.resume would fail on it later with a bare JSONDecodeError
+        read_stats(self.root, check_nan=False)
         if record is None:
             if info["total_episodes"] != 0:
                 raise CollectionError(
-                    f"{self.root} holds a LeRobot dataset ({info['total_episodes']} episodes) that bavo-collect did not "
-                    f"make (no {SIDECAR}); choose another --root")
-            record = CollectionRecord(repo_id=self.cfg.repo_id, settings=self.settings, next_seed=self.cfg.seed)
+                    f"{self.root} holds a LeRobot dataset ({info['total_episodes']} episodes) that "
+                    "bavo-collect did not "
+                    f"make (no {SIDECAR}); choose another --root"
+                )
+            record = CollectionRecord(
+                repo_id=self.cfg.repo_id, settings=self.settings, next_seed=self.cfg.seed
+            )
         else:
             recorded_codec = recorded_video_codec(record.settings)
             if self.cfg.video_codec is None and recorded_codec is not None and self.cfg.use_videos:
@@ -103,8 +119,10 @@ class DatasetSession:
         S.check_features(info["features"], n_points=self.cfg.settings.n_points)
         expected_shape = (self.cfg.settings.image_height, self.cfg.settings.image_width, 3)
         if tuple(info["features"][S.OBS_IMAGE]["shape"]) != expected_shape:
-            raise CollectionError(f"{self.root} stores images of shape {info['features'][S.OBS_IMAGE]['shape']}, "
-                                  f"this run records {expected_shape}")
+            raise CollectionError(
+                f"{self.root} stores images of shape {info['features'][S.OBS_IMAGE]['shape']}, "
+                f"this run records {expected_shape}"
+            )
         self.staging.mkdir(parents=True, exist_ok=True)
         for tmp in self.staging.glob("*.tmp"):
             tmp.unlink()
@@ -123,9 +141,11 @@ class DatasetSession:
         try:  # before LeRobot opens it: a missing meta/ file would make LeRobot fetch meta/ from the Hub repo
             check_committed_files(self.root, info, check_videos=self.cfg.use_videos)
         except ValueError as e:
-            raise CollectionError(f"{e}. The committed episodes must be whole to continue this dataset (LeRobot would "
-                                  "otherwise fetch missing metadata from the Hub, or keep a damaged file): restore "
-                                  "the file, or collect into another --root") from None
+            raise CollectionError(
+                f"{e}. The committed episodes must be whole to continue this dataset (LeRobot would "
+                "otherwise fetch missing metadata from the Hub, or keep a damaged file): restore "
+                "the file, or collect into another --root"
+            ) from None
         self.save_record()
 
     def use_video_codec(self, codec: str) -> None:
@@ -134,10 +154,10 @@ class DatasetSession:
         self.settings.update(video_codec_record_entry(codec, self.cfg.use_videos))
 
     def check_settings(self, recorded: dict) -> None:
-        """Refuse to continue a dataset recorded with other settings. Both sides' keys are compared: options that
-        are recorded only when used (execution noise, a codec other than the legacy one, teleop's human source)
-        must be absent on both sides or equal. The codec is compared as `recorded_video_codec` reads it, so a
-        record made before the choice existed reads as 'libsvtav1'."""
+        """Refuse to continue a dataset recorded with other settings. Both sides' keys are compared: options
+        that are recorded only when used (execution noise, a codec other than the legacy one, teleop's human
+        source) must be absent on both sides or equal. The codec is compared as `recorded_video_codec` reads
+        it, so a record made before the choice existed reads as 'libsvtav1'."""
         def view(settings: dict) -> dict:
             return {**settings, "video_codec": recorded_video_codec(settings)}
 
@@ -155,8 +175,10 @@ class DatasetSession:
             self.snapshot.restore()
         except SnapshotMissing as e:
             raise CollectionError(
-                f"{self.root}: an interrupted commit of seeds {self.record.pending_commit.seeds} cannot be rolled "
-                f"back because {e}; start a new collection in another --root") from None
+                f"{self.root}: an interrupted commit of seeds {self.record.pending_commit.seeds} cannot be "
+                "rolled "
+                f"back because {e}; start a new collection in another --root"
+            ) from None
         self.record.pending_commit = None
         self.save_record()
 
@@ -184,7 +206,9 @@ class DatasetSession:
             staged_path(self.staging, seed, suffix).unlink(missing_ok=True)
 
     # -------------------------------------------------------------- commit
-    def commit(self, batch: list[dict], discards: list[dict], next_seed: int, timings: dict | None = None) -> None:
+    def commit(
+        self, batch: list[dict], discards: list[dict], next_seed: int, timings: dict | None = None
+    ) -> None:
         """Append `batch` (summaries of staged kept episodes, seed order) to the dataset in one writer session
         (`writer.WriterSession`), here and now; an interruption (error, Ctrl+C) before the record is saved
         rolls the session back. `bavo-teleop` commits each human episode this way; `bavo-collect` writes its
@@ -202,8 +226,9 @@ class DatasetSession:
         session.close(next_seed)
 
     def verify_videos(self, first_index: int, batch: list[dict]) -> None:
-        """Every committed episode's video segment must cover all its frames (no dropped frames), and the data and
-        video files holding the episodes must read whole (`verify.check_committed_files`, as on resume)."""
+        """Every committed episode's video segment must cover all its frames (no dropped frames), and the data
+        and video files holding the episodes must read whole (`verify.check_committed_files`, as on
+        resume)."""
         if not self.cfg.use_videos:
             return
         import pyarrow.dataset as pads
@@ -220,15 +245,19 @@ class DatasetSession:
             duration = stop - start
             if abs(duration - b["length"] / S.FPS) > 0.5 / S.FPS:
                 raise CollectionError(
-                    f"episode {first_index + i} (seed {b['seed']}): video covers {duration:.3f} s for {b['length']} "
-                    "frames (dropped frames in the encoder?)")
+                    f"episode {first_index + i} (seed {b['seed']}): video covers {duration:.3f} s for "
+                    f"{b['length']} "
+                    "frames (dropped frames in the encoder?)"
+                )
         from lerobot_bavo.datasets.metadata import read_info
 
         try:  # and the files holding them: every frame there, the last pictures decodable, the parquet whole
             check_committed_files(self.root, read_info(self.root),
                                   episode_indices={first_index + i for i in range(len(batch))})
         except ValueError as e:
-            raise CollectionError(f"after writing episodes {first_index}..{first_index + len(batch) - 1}: {e}") from None
+            raise CollectionError(
+                f"after writing episodes {first_index}..{first_index + len(batch) - 1}: {e}"
+            ) from None
 
     # -------------------------------------------------------------- lock and end
     def lock(self):
@@ -251,17 +280,22 @@ class DatasetSession:
                          committed_after=len(self.record.episodes))
         self.record.runs.append(run_stats)
         self.record.complete = len(self.record.episodes) >= self.cfg.episodes
-        self.record.extra["point_cloud_channel_stats"] = {k: np.asarray(v).tolist() for k, v in per_channel.items()
-                                                          if k in ("min", "max", "mean", "std")}
+        self.record.extra["point_cloud_channel_stats"] = {
+            k: np.asarray(v).tolist() for k, v in per_channel.items() if k in ("min", "max", "mean", "std")
+        }
         if self.cfg.command:
             self.record.extra["command"] = self.cfg.command
         self.save_record()
         shutil.rmtree(self.staging, ignore_errors=True)
         write_card(self.root, self.cfg.repo_id)
         summary = {
-            "root": str(self.root), "episodes": len(self.record.episodes), "frames": self.record.frames,
-            "discarded": len(self.record.discarded), "attempts_this_run": run_stats["attempts"],
-            "new_this_run": run_stats["committed_after"] - run_stats["committed_before"], "wall_s": round(wall, 1),
+            "root": str(self.root),
+            "episodes": len(self.record.episodes),
+            "frames": self.record.frames,
+            "discarded": len(self.record.discarded),
+            "attempts_this_run": run_stats["attempts"],
+            "new_this_run": run_stats["committed_after"] - run_stats["committed_before"],
+            "wall_s": round(wall, 1),
             "finish_s": round(time.perf_counter() - t0, 1),
         }
         if self.cfg.push_to_hub:
@@ -272,7 +306,9 @@ class DatasetSession:
             except Exception as e:
                 raise CollectionError(
                     f"the dataset is complete at {self.root} but the upload to {self.cfg.repo_id!r} failed "
-                    f"({type(e).__name__}: {e}). Log in with `huggingface-cli login` (or set HF_TOKEN) and re-run the "
-                    "same command: nothing is recollected.") from e
+                    f"({type(e).__name__}: {e}). Log in with `huggingface-cli login` (or set HF_TOKEN) and "
+                    "re-run the "
+                    "same command: nothing is recollected."
+                ) from e
             summary["pushed"] = self.cfg.repo_id
         return summary

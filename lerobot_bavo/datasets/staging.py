@@ -72,7 +72,8 @@ def warm_job(job: dict) -> None:
 
 
 def run_job(job: dict) -> dict:
-    """Record one seeded episode with the scripted expert and stage it (`stage_episode`); returns its summary."""
+    """Record one seeded episode with the scripted expert and stage it (`stage_episode`); returns its
+    summary."""
     recorder = _recorder(job)
     cpu0 = time.process_time()
     noise = ExecutionNoise(**job["execution_noise"]) if job.get("execution_noise") else None
@@ -96,7 +97,9 @@ def stage_episode(record, staging: Path, kept: bool, cpu0: float | None = None) 
                "episode_s": round(record.timings["episode_s"], 3), "source": record.source}
     if kept:
         t0 = time.perf_counter()
-        targets = teacher_targets(record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX)
+        targets = teacher_targets(
+            record, n_future=S.N_FUTURE, clip_length=S.CLIP_LENGTH, anchor_index=S.ANCHOR_INDEX
+        )
         summary["teacher_s"] = round(time.perf_counter() - t0, 3)
         summary["valid_frames"] = int(targets["valid"].sum())
         cols = episode_frames(record, targets)
@@ -124,8 +127,8 @@ def ship_job(job: dict) -> dict:
 
 
 def receive_shipped(shipped: dict, staging: Path) -> dict:
-    """Write a `ship_job` result into `staging` as `run_job` would (columns, then the summary as the completion
-    marker, both through atomic renames); returns the summary."""
+    """Write a `ship_job` result into `staging` as `run_job` would (columns, then the summary as the
+    completion marker, both through atomic renames); returns the summary."""
     summary = shipped["summary"]
     seed = int(summary["seed"])
     if shipped["npz"] is not None:

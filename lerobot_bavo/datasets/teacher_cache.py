@@ -62,7 +62,9 @@ def dataset_episode(ds, episode_index: int, fovy: float | None = None) -> Stored
     return StoredEpisode(
         rgb=rgb,
         camera_pose=S.unflatten_camera_pose(np.asarray(rows[S.OBS_CAMERA_POSE], dtype=np.float64)),
-        point_pixels=S.unflatten_point_pixels(np.asarray(rows[S.OBS_POINT_PIXELS]), n).round().astype(np.int64),
+        point_pixels=S.unflatten_point_pixels(np.asarray(rows[S.OBS_POINT_PIXELS]), n)
+        .round()
+        .astype(np.int64),
         K=intrinsics_from_fovy(fovy, h, w),
     )
 
@@ -109,7 +111,12 @@ def recompute_teacher_cache(ds, teacher, output_dir: str | Path, repo_id: str, f
     src_record = Path(ds.root) / "meta" / "bavo_collection.json"
     if src_record.exists():
         record = json.loads(src_record.read_text())
-        record["settings"]["teacher"] = {"name": getattr(teacher, "name", type(teacher).__name__), "feature_dim": d,
-                                         "clip_length": 32, "anchor_index": 16, "n_future": 15}
+        record["settings"]["teacher"] = {
+            "name": getattr(teacher, "name", type(teacher).__name__),
+            "feature_dim": d,
+            "clip_length": 32,
+            "anchor_index": 16,
+            "n_future": 15,
+        }
         (Path(output_dir) / "meta" / "bavo_collection.json").write_text(json.dumps(record, indent=1))
     return new

@@ -1,9 +1,9 @@
 """Checks of a local dataset's metadata and committed files, before LeRobot opens it or anything copies it.
 
 Why:
-- LeRobot's `LeRobotDatasetMetadata` fetches `meta/` from the Hub repo its repo id names, into the local folder,
-  whenever a local metadata file is missing (`meta/episodes/`, `meta/tasks.parquet`). A resumed `bavo-collect`
-  must never reach the Hub, so `metadata_problems` is checked before LeRobot opens the dataset.
+- LeRobot's `LeRobotDatasetMetadata` fetches `meta/` from the Hub repo its repo id names, into the local
+  folder, whenever a local metadata file is missing (`meta/episodes/`, `meta/tasks.parquet`). A resumed
+  `bavo-collect` must never reach the Hub, so `metadata_problems` is checked before LeRobot opens the dataset.
 - The file check read only parquet footers and opened the mp4 containers. A parquet file with damaged pages,
   or an mp4 cut short (LeRobot writes them `faststart`, index first, so a cut-off file still opens), passed:
   a resumed collection kept it and the views builder copied it, both with exit 0, and training failed on it.
@@ -29,8 +29,10 @@ def metadata_problems(root: str | Path, info: dict) -> list[str]:
     if info.get("total_tasks", 0) and not (root / TASKS_FILE).is_file():
         problems.append(f"{root / TASKS_FILE} is missing ({info['total_tasks']} task(s) in meta/info.json)")
     if info.get("total_episodes", 0) and not sorted((root / EPISODES_DIR).glob("*/*.parquet")):
-        problems.append(f"{root / EPISODES_DIR} holds no episode table ({info['total_episodes']} episode(s) in "
-                        "meta/info.json)")
+        problems.append(
+            f"{root / EPISODES_DIR} holds no episode table ({info['total_episodes']} episode(s) in "
+            "meta/info.json)"
+        )
     return problems
 
 
@@ -50,9 +52,9 @@ def parquet_rows(path: Path, what: str) -> int:
 
 
 def video_frames(path: Path) -> int:
-    """Frames in the first video stream of the mp4 at `path`: every packet is read, and the packets from the last
-    keyframe on are decoded (a file cut short has fewer packets than its index promises, or a last group of
-    pictures that does not decode). ValueError naming the file otherwise."""
+    """Frames in the first video stream of the mp4 at `path`: every packet is read, and the packets from the
+    last keyframe on are decoded (a file cut short has fewer packets than its index promises, or a last group
+    of pictures that does not decode). ValueError naming the file otherwise."""
     import av
 
     try:
@@ -76,7 +78,8 @@ def video_frames(path: Path) -> int:
 
 
 def _episode_rows(root: Path, columns: list[str]) -> list[dict]:
-    """The `columns` of every episode row of `meta/episodes/`, each file read whole (ValueError naming a bad one)."""
+    """The `columns` of every episode row of `meta/episodes/`, each file read whole (ValueError naming a bad
+    one)."""
     import pyarrow.parquet as pq
 
     rows = []
@@ -90,18 +93,28 @@ def _episode_rows(root: Path, columns: list[str]) -> list[dict]:
     return rows
 
 
-def episode_files(root: str | Path, info: dict, episodes: list[dict]) -> dict[Path, tuple[str, int, set[int]]]:
-    """Every data and video file the episode rows name -> ("data" or "video", the frames its episodes add up to,
-    their indices)."""
+def episode_files(
+    root: str | Path, info: dict, episodes: list[dict]
+) -> dict[Path, tuple[str, int, set[int]]]:
+    """Every data and video file the episode rows name -> ("data" or "video", the frames its episodes add up
+    to, their indices)."""
     root = Path(root)
     video_keys = [k for k, f in info["features"].items() if isinstance(f, dict) and f.get("dtype") == "video"]
     out: dict[Path, tuple[str, int, set[int]]] = {}
     for e in episodes:
         paths = [("data", info["data_path"].format(chunk_index=int(e["data/chunk_index"]),
                                                    file_index=int(e["data/file_index"])))]
-        paths += [("video", info["video_path"].format(video_key=k, chunk_index=int(e[f"videos/{k}/chunk_index"]),
-                                                      file_index=int(e[f"videos/{k}/file_index"])))
-                  for k in video_keys]
+        paths += [
+            (
+                "video",
+                info["video_path"].format(
+                    video_key=k,
+                    chunk_index=int(e[f"videos/{k}/chunk_index"]),
+                    file_index=int(e[f"videos/{k}/file_index"]),
+                ),
+            )
+            for k in video_keys
+        ]
         for kind, rel in paths:
             _, frames, indices = out.get(root / rel, (kind, 0, set()))
             out[root / rel] = (kind, frames + int(e["length"]), indices | {int(e["episode_index"])})
@@ -110,11 +123,11 @@ def episode_files(root: str | Path, info: dict, episodes: list[dict]) -> dict[Pa
 
 def check_committed_files(root: str | Path, info: dict, check_videos: bool = True,
                           episode_indices: set[int] | None = None) -> None:
-    """Raise ValueError naming the first problem of the dataset at `root` (`info`: its meta/info.json): missing
-    metadata (`metadata_problems`), an episode table that disagrees with info.json, and for every data / video
-    file the episode table names: missing, unreadable, or holding another number of rows / frames than its
-    episodes' lengths add up to. `episode_indices`: check only the files holding these episodes (a commit's).
-    Files no episode names are not read (a rolled-back writer leaves none)."""
+    """Raise ValueError naming the first problem of the dataset at `root` (`info`: its meta/info.json):
+    missing metadata (`metadata_problems`), an episode table that disagrees with info.json, and for every data
+    / video file the episode table names: missing, unreadable, or holding another number of rows / frames than
+    its episodes' lengths add up to. `episode_indices`: check only the files holding these episodes (a
+    commit's). Files no episode names are not read (a rolled-back writer leaves none)."""
     root = Path(root)
     problems = metadata_problems(root, info)
     if problems:
@@ -126,16 +139,22 @@ def check_committed_files(root: str | Path, info: dict, check_videos: bool = Tru
     n_frames = sum(int(e["length"]) for e in episodes)
     if len(episodes) != info.get("total_episodes") or n_frames != info.get("total_frames"):
         raise ValueError(
-            f"dataset at {root} is inconsistent: meta/info.json declares {info.get('total_episodes')} episodes / "
+            f"dataset at {root} is inconsistent: meta/info.json declares {info.get('total_episodes')} "
+            "episodes / "
             f"{info.get('total_frames')} frames, the episode table holds {len(episodes)} / {n_frames} "
-            "(an interrupted write? `bavo-collect` with the same arguments repairs its own datasets)")
+            "(an interrupted write? `bavo-collect` with the same arguments repairs its own datasets)"
+        )
     for path, (kind, frames, indices) in sorted(episode_files(root, info, episodes).items()):
-        if (kind == "video" and not check_videos) or (episode_indices is not None and not indices & episode_indices):
+        if (kind == "video" and not check_videos) or (
+            episode_indices is not None and not indices & episode_indices
+        ):
             continue
         if not path.is_file():
             raise ValueError(f"dataset at {root} is incomplete: {kind} file {path} is missing")
         found = parquet_rows(path, "data") if kind == "data" else video_frames(path)
         if found != frames:
             unit = "rows" if kind == "data" else "frames"
-            raise ValueError(f"corrupted {kind} file {path}: {found} {unit}, its episodes hold {frames} frames"
-                             + ("" if kind == "data" else " (cut short?)"))
+            raise ValueError(
+                f"corrupted {kind} file {path}: {found} {unit}, its episodes hold {frames} frames"
+                + ("" if kind == "data" else " (cut short?)")
+            )

@@ -16,10 +16,10 @@ Reproducibility (the same seeds give the same video bytes):
 - On x86-64, x264 is limited to its SSE4.2 SIMD code (`x264-params: asm=SSE4.2`, `x264_simd_limit`). Its
   AVX-512 code (x264 core 165, as bundled with PyAV 15) gave a different bitstream from run to run inside
   `bavo-collect` (4 of 6 identical 1-episode collections at 240 x 320 differed; with `asm=SSE4.2` 12 of 12
-  agreed, with `asm=AVX2` 6 of 6, and with `asm=0` 6 of 6 at 48 x 64), so it reads memory it does not own. Its SSE4.2 and AVX2 code give the same
-  bytes and, at 240 x 320, the same CPU time (0.64 vs 0.62 s per 523 frames), so SSE4.2 is the limit: every
-  x86-64 machine since 2011 has it, and the recorded encoder options are the same on all of them. Other
-  architectures use x264's own choice.
+  agreed, with `asm=AVX2` 6 of 6, and with `asm=0` 6 of 6 at 48 x 64), so it reads memory it does not own. Its
+  SSE4.2 and AVX2 code give the same bytes and, at 240 x 320, the same CPU time (0.64 vs 0.62 s per 523
+  frames), so SSE4.2 is the limit: every x86-64 machine since 2011 has it, and the recorded encoder options
+  are the same on all of them. Other architectures use x264's own choice.
 - SVT-AV1 keeps LeRobot's own settings, thread count included (its bitstream depends on neither thread count
   nor SIMD level), so `libsvtav1` writes exactly the videos earlier versions of `bavo-collect` wrote.
 
@@ -91,8 +91,8 @@ def recorded_video_codec(settings: dict) -> str | None:
 
 
 def record_entry(codec: str, use_videos: bool) -> dict:
-    """What the collection record's settings say about the codec: nothing without video or for the legacy codec
-    (so records made before the choice existed still match), else {"video_codec": codec}."""
+    """What the collection record's settings say about the codec: nothing without video or for the legacy
+    codec (so records made before the choice existed still match), else {"video_codec": codec}."""
     if not use_videos or codec == LEGACY_VIDEO_CODEC:
         return {}
     return {"video_codec": check_video_codec(codec)}
@@ -100,7 +100,8 @@ def record_entry(codec: str, use_videos: bool) -> dict:
 
 def quiet_libav() -> None:
     """Silence libav's own messages below warnings (x264's statistics after every episode, the mp4 muxer's
-    "moving the moov atom"): LeRobot's encoder threads hand libav back its default logger, which prints them."""
+    "moving the moov atom"): LeRobot's encoder threads hand libav back its default logger, which prints
+    them."""
     import av
 
     av.logging.set_libav_level(av.logging.WARNING)

@@ -37,12 +37,15 @@ from __future__ import annotations
 import numpy as np
 from lerobot.datasets.compute_stats import RunningQuantileStats
 
-FRAME_CHUNK = 32  # frames reduced at a time in the replay (bounds its buffers: 32 frames x 57,600 values x 5 bytes)
-_VALUES = np.arange(256, dtype=np.float32)  # every value a uint8 pixel can take, as the float32 batch holds it
+# frames reduced at a time in the replay (bounds its buffers: 32 frames x 57,600 values x 5 bytes)
+FRAME_CHUNK = 32
+# every value a uint8 pixel can take, as the float32 batch holds it
+_VALUES = np.arange(256, dtype=np.float32)
 
 
 class DeferredFrameStats(RunningQuantileStats):
-    """`RunningQuantileStats` with uint8 updates deferred to `get_statistics` (same statistics, bit for bit)."""
+    """`RunningQuantileStats` with uint8 updates deferred to `get_statistics` (same statistics, bit for
+    bit)."""
 
     def __init__(self, quantile_list: list[float] | None = None, num_quantile_bins: int = 5000):
         super().__init__(quantile_list, num_quantile_bins)
@@ -75,7 +78,8 @@ class DeferredFrameStats(RunningQuantileStats):
         frame_mean = np.empty((n_frames, channels), dtype=np.float32)
         frame_mean_sq = np.empty((n_frames, channels), dtype=np.float32)
         # Frames side by side as lanes: (N, frames x C), so that a reduction over axis 0 is the row-after-row
-        # float32 sum numpy does for one (N, C) frame, for many frames at once. Buffers are reused across chunks.
+        # float32 sum numpy does for one (N, C) frame, for many frames at once. Buffers are reused across
+        # chunks.
         lanes_u8 = np.empty((n, FRAME_CHUNK * channels), dtype=np.uint8)
         lanes = np.empty((n, FRAME_CHUNK * channels), dtype=np.float32)
         for start in range(0, n_frames, FRAME_CHUNK):
@@ -108,7 +112,9 @@ class DeferredFrameStats(RunningQuantileStats):
                 ]
             else:
                 if channels != self._mean.size:
-                    raise ValueError("The length of new vectors does not match the initialized vector length.")
+                    raise ValueError(
+                        "The length of new vectors does not match the initialized vector length."
+                    )
                 new_max, new_min = frame_max[f], frame_min[f]
                 max_changed = np.any(new_max > self._max)
                 min_changed = np.any(new_min < self._min)
@@ -124,7 +130,8 @@ class DeferredFrameStats(RunningQuantileStats):
         self._add_to_histograms(frames[run_start:])
 
     def _add_to_histograms(self, frames: np.ndarray) -> None:
-        """Add (F, N, C) uint8 frames to the histograms with the current edges (one weighted histogram per channel)."""
+        """Add (F, N, C) uint8 frames to the histograms with the current edges (one weighted histogram per
+        channel)."""
         if frames.shape[0] == 0:
             return
         for i in range(frames.shape[2]):
@@ -135,5 +142,6 @@ class DeferredFrameStats(RunningQuantileStats):
 
 def _deferrable(rows: np.ndarray) -> bool:
     """A batch the replay reproduces exactly: uint8 (N, C) with C >= 2. With one channel numpy's mean runs
-    along the contiguous axis, which it sums pairwise, not row after row, so such batches stay with LeRobot."""
+    along the contiguous axis, which it sums pairwise, not row after row, so such batches stay with
+    LeRobot."""
     return rows.dtype == np.uint8 and rows.ndim == 2 and rows.shape[0] > 0 and rows.shape[1] >= 2

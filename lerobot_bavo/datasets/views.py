@@ -91,8 +91,13 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
 
         labels = occluder_point_labels(source)
         info = {"dtype": "float32", "shape": [labels.shape[1]], "names": None}
-        view_ds = modify_features(source, add_features={S.TEACHER_OCCLUDER: (labels, info)}, remove_features=drop,
-                                  output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
+        view_ds = modify_features(
+            source,
+            add_features={S.TEACHER_OCCLUDER: (labels, info)},
+            remove_features=drop,
+            output_dir=output_root,
+            repo_id=f"{source.repo_id}_{view}",
+        )
     else:
         view_ds = remove_feature(source, drop, output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
     restore_default_mode(Path(output_root).glob("videos/*/*/*.mp4"))  # copies keep the source's 0600 mp4s
@@ -117,20 +122,31 @@ def occluder_point_labels(source, rows_per_block: int = 4096) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--root", type=Path, required=True, help="the BAVO dataset folder (bavo-collect --root)")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--root", type=Path, required=True, help="the BAVO dataset folder (bavo-collect --root)"
+    )
     parser.add_argument("--view", choices=sorted(VIEW_KEEPS), required=True,
                         help="points: for maniflow/afar; images: for LeRobot's image policies; "
                              "state: privileged object poses for a state-only maniflow")
-    parser.add_argument("--repo-id", default=None, help="the dataset's repo id (default: from its collection record)")
-    parser.add_argument("--output-root", type=Path, default=None, help="where the copy goes (default <root>_<view>)")
+    parser.add_argument(
+        "--repo-id", default=None, help="the dataset's repo id (default: from its collection record)"
+    )
+    parser.add_argument(
+        "--output-root", type=Path, default=None, help="where the copy goes (default <root>_<view>)"
+    )
     args = parser.parse_args(argv)
     try:  # the source is checked whole first (`hub.load_bavo_dataset`): a damaged file is named, not copied
         ds = make_view(args.root, args.view, args.repo_id, args.output_root)
     except (FileNotFoundError, FileExistsError, ValueError) as e:
         raise SystemExit(f"lerobot_bavo.datasets.views: {e}") from None
-    print(f"wrote {ds.root} (repo id {ds.repo_id}): {ds.meta.total_episodes} episodes, {ds.meta.total_frames} frames, "
-          f"features {[k for k in ds.meta.features if k not in DEFAULT_FEATURES]}")
+    print(
+        f"wrote {ds.root} (repo id {ds.repo_id}): {ds.meta.total_episodes} episodes, {ds.meta.total_frames} "
+        "frames, "
+        f"features {[k for k in ds.meta.features if k not in DEFAULT_FEATURES]}"
+    )
 
 
 if __name__ == "__main__":

@@ -7,8 +7,8 @@ before the record is saved rolls it back from the snapshot (`abort`); the staged
 after the record says they are committed, so a rolled-back commit is redone from them by the next run.
 
 Why episode by episode (`StreamingWriter`, issue 11): the writer was about 40 % of collection CPU (LeRobot's
-video stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at once
-(~20 s for 10), the 2 x `--workers` attempts in flight ran out during the commit, and the last batch was
+video stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at
+once (~20 s for 10), the 2 x `--workers` attempts in flight ran out during the commit, and the last batch was
 written after every worker had finished: a CPU trace of a 30-episode run on an idle 2-core machine showed the
 cores ~9 % idle. Now each kept episode is written as soon as it and every lower seed are resolved (~2 s, less
 than the attempts in flight keep the workers busy for), into a session opened at the batch's first episode
@@ -75,13 +75,19 @@ class WriterSession:
         record = session.record
         record.pending_commit = PendingCommit([], record.next_seed)
         session.save_record()
-        try:  # from here until `close` saves the record, the session is pending: any interruption rolls it back
+        # from here until `close` saves the record, the session is pending: any interruption rolls it back
+        try:
             cfg = session.cfg
             codec = session.video_codec
-            self.ds = LeRobotDataset.resume(cfg.repo_id, root=session.root, video_backend="pyav",
-                                            streaming_encoding=cfg.use_videos,
-                                            encoder_queue_maxsize=max_frames + ENCODER_QUEUE_SLACK,
-                                            rgb_encoder=rgb_encoder(codec), encoder_threads=encoder_threads(codec))
+            self.ds = LeRobotDataset.resume(
+                cfg.repo_id,
+                root=session.root,
+                video_backend="pyav",
+                streaming_encoding=cfg.use_videos,
+                encoder_queue_maxsize=max_frames + ENCODER_QUEUE_SLACK,
+                rgb_encoder=rgb_encoder(codec),
+                encoder_threads=encoder_threads(codec),
+            )
             self.first_index = self.ds.meta.total_episodes
             self._patches.enter_context(skip_noop_image_embedding())
             self._patches.enter_context(exact_fast_episode_stats())
@@ -117,7 +123,9 @@ class WriterSession:
                 if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
         n = cols[S.ACTION].shape[0]
         if n != summary["length"]:
-            raise CollectionError(f"staged episode seed {seed} has {n} frames, its marker says {summary['length']}")
+            raise CollectionError(
+                f"staged episode seed {seed} has {n} frames, its marker says {summary['length']}"
+            )
         description = session.settings["task_description"]
         for t in range(n):
             frame = {k: v[t] for k, v in cols.items()}
@@ -137,7 +145,8 @@ class WriterSession:
         try:
             self.ds.finalize()
             self._patches.close()
-            restore_default_mode(session.root.glob("videos/*/*/*.mp4"))  # LeRobot's concatenated mp4s are 0600
+            # LeRobot's concatenated mp4s are 0600
+            restore_default_mode(session.root.glob("videos/*/*/*.mp4"))
             session.verify_videos(self.first_index, self.kept)
             for i, b in enumerate(self.kept):
                 record.episodes.append({"episode_index": self.first_index + i, "seed": b["seed"],
@@ -174,8 +183,8 @@ class WriterSession:
 
 
 class StreamingWriter:
-    """Appends a run's resolved attempts to the dataset as they come, `commit_every` kept episodes per session,
-    the last session ending at the `needed`-th kept episode.
+    """Appends a run's resolved attempts to the dataset as they come, `commit_every` kept episodes per
+    session, the last session ending at the `needed`-th kept episode.
 
     The main loop calls `put` with every resolved attempt in seed order (a kept episode is written before
     `put` returns), `finish` at the end and `abort` when it is interrupted: an open session that has not

@@ -16,8 +16,8 @@ Reward: task progress d / 5 (deepest milestone so far, monotone), so LeRobot's
 `avg_max_reward` is the Task Progress Score. `terminated` and `info["is_success"]` at M5.
 Privileged information (milestone flags, object poses, camera pose) only goes into `info`.
 Conditions (`envs/conditions.py`): "clean" has no occluder; "stage" and "random" place the benchmark
-occluder at reset and at the Stage transitions / Random-time triggers (`envs/occlusion.py`); `info["occlusion"]`
-reports the current event and the target's per-step visibility, and under "random"
+occluder at reset and at the Stage transitions / Random-time triggers (`envs/occlusion.py`);
+`info["occlusion"]` reports the current event and the target's per-step visibility, and under "random"
 `info["cvg"]` at episode end holds the events' CVG (`lerobot_bavo/metrics.py`). The visibility
 renders use their own GL context and never touch observations, actions or dynamics.
 Seeding: every random draw (task layout, then the occlusion schedule) comes from
@@ -115,7 +115,8 @@ class BavoEnv(gym.Env):
 
         self.task = task if isinstance(task, Task) else make_task(task)
         self.condition = self.condition_rule.name
-        self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)  # checks them
+        # checks them
+        self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)
         self.render_mode = render_mode
         self.render_height = render_height
         if episode_length is not None and episode_length < 1:
@@ -141,7 +142,9 @@ class BavoEnv(gym.Env):
 
         # Actuator i drives the joint of action entry i (same 21-entry order).
         self._act_qpos_adr = self.model.jnt_qposadr[self.model.actuator_trnid[:, 0]]
-        self._grip_adr = [self.model.jnt_qposadr[self.model.joint(f"{p}finger_a").id] for p in ("left_", "right_")]
+        self._grip_adr = [
+            self.model.jnt_qposadr[self.model.joint(f"{p}finger_a").id] for p in ("left_", "right_")
+        ]
         self._camera_id = self.model.camera(C.ACTIVE_CAMERA).id
         self._K = intrinsics_from_fovy(fovy, image_height, image_width)
         self._vis_size = (max(16, int(round(image_height * visibility_scale))),
@@ -149,15 +152,20 @@ class BavoEnv(gym.Env):
 
         lo, hi = C.action_bounds()
         self.action_space = gym.spaces.Box(lo, hi, dtype=np.float32)
-        self.observation_space = gym.spaces.Dict({
-            ENV_STATE_KEY: gym.spaces.Box(-np.inf, np.inf, (C.ACTION_DIM,), np.float32),
-            "pixels": gym.spaces.Dict({
-                "active": gym.spaces.Box(0, 255, (image_height, image_width, 3), np.uint8),
-            }),
-            ENV_POINT_CLOUD_KEY: gym.spaces.Box(-np.inf, np.inf, (n_points, POINT_CHANNELS), np.float32),
-            ENV_POINT_PIXELS_KEY: gym.spaces.Box(-1, max(image_height, image_width), (n_points, PIXEL_CHANNELS),
-                                                 np.int32),
-        })
+        self.observation_space = gym.spaces.Dict(
+            {
+                ENV_STATE_KEY: gym.spaces.Box(-np.inf, np.inf, (C.ACTION_DIM,), np.float32),
+                "pixels": gym.spaces.Dict(
+                    {
+                        "active": gym.spaces.Box(0, 255, (image_height, image_width, 3), np.uint8),
+                    }
+                ),
+                ENV_POINT_CLOUD_KEY: gym.spaces.Box(-np.inf, np.inf, (n_points, POINT_CHANNELS), np.float32),
+                ENV_POINT_PIXELS_KEY: gym.spaces.Box(
+                    -1, max(image_height, image_width), (n_points, PIXEL_CHANNELS), np.int32
+                ),
+            }
+        )
         if self.environment_state:
             self.observation_space[ENV_ENV_STATE_KEY] = gym.spaces.Box(
                 -np.inf, np.inf, (self.environment_state_dim,), np.float32)
@@ -202,15 +210,17 @@ class BavoEnv(gym.Env):
         self._ended = False
         if self.occluded:
             # Drawn after the task's reset, so a seed gives the same layout under every condition.
-            self._schedule = OcclusionSchedule.sample(self.condition_rule, self.task.stage_transitions, self.np_random)
+            self._schedule = OcclusionSchedule.sample(
+                self.condition_rule, self.task.stage_transitions, self.np_random
+            )
             self._update_occlusion()
         return self._observation(), self._info()
 
     def step(self, action):
         """One 25 Hz control step. After an episode ended (`terminated` or `truncated` was returned), stepping
-        again raises `RuntimeError` until `reset()`: gymnasium leaves that call undefined, and continuing would
-        run past the step limit and report milestones of a finished episode (gymnasium's vector envs reset
-        automatically, so LeRobot's rollouts never do it)."""
+        again raises `RuntimeError` until `reset()`: gymnasium leaves that call undefined, and continuing
+        would run past the step limit and report milestones of a finished episode (gymnasium's vector envs
+        reset automatically, so LeRobot's rollouts never do it)."""
         if self._ended:
             raise RuntimeError("the episode has ended (terminated or truncated); call reset() before step()")
         self.simulate(action)
@@ -250,7 +260,9 @@ class BavoEnv(gym.Env):
     def visibility_probe(self) -> TargetVisibility:
         """Privileged visibility renders (lazily created; experts may use it for view search)."""
         if self._visibility is None:
-            self._visibility = TargetVisibility(self.model, self._camera_id, *self._vis_size, self.obs_settings.fovy)
+            self._visibility = TargetVisibility(
+                self.model, self._camera_id, *self._vis_size, self.obs_settings.fovy
+            )
         return self._visibility
 
     @property
@@ -322,7 +334,9 @@ class BavoEnv(gym.Env):
         if action.shape != (C.ACTION_DIM,):
             raise ValueError(f"action must have shape ({C.ACTION_DIM},), got {action.shape}")
         if not np.all(np.isfinite(action)):
-            raise ValueError(f"action contains NaN or inf at indices {np.flatnonzero(~np.isfinite(action)).tolist()}")
+            raise ValueError(
+                f"action contains NaN or inf at indices {np.flatnonzero(~np.isfinite(action)).tolist()}"
+            )
         target = self.action_to_ctrl(np.clip(action, self.action_space.low, self.action_space.high))
         start = self._ctrl
         for k in range(1, C.CONTROL_SUBSTEPS + 1):
@@ -351,7 +365,9 @@ class BavoEnv(gym.Env):
 
     def camera_pose(self) -> np.ndarray:
         """T_B<-C (4x4) of the active camera, OpenCV camera convention, from forward kinematics."""
-        return camera_pose_from_mujoco(self.data.cam_xpos[self._camera_id], self.data.cam_xmat[self._camera_id])
+        return camera_pose_from_mujoco(
+            self.data.cam_xpos[self._camera_id], self.data.cam_xmat[self._camera_id]
+        )
 
     @property
     def progress(self) -> int:

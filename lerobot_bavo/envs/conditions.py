@@ -77,9 +77,12 @@ class Clean(Condition):
 class Stage(Condition):
     name = "stage"
     description = (
-        "**Stage Occlusion** (the paper's training condition): an occluder panel is placed on the line of sight "
-        "from the active camera to a task-relevant target at reset, and re-placed for a new target at the task's two "
-        "stage transitions (three occlusion phases per episode). The scripted demonstrator pauses manipulation after "
+        "**Stage Occlusion** (the paper's training condition): an occluder panel is placed on the line of "
+        "sight "
+        "from the active camera to a task-relevant target at reset, and re-placed for a new target at the "
+        "task's two "
+        "stage transitions (three occlusion phases per episode). The scripted demonstrator pauses "
+        "manipulation after "
         "each event, moves the camera arm to a view that sees the target past the occluder, then resumes "
         "(paper Sec. 3.2)."
     )

@@ -137,7 +137,9 @@ def panel_rotation_facing(direction: np.ndarray) -> np.ndarray:
     return np.column_stack([n, width, height])
 
 
-def candidate_placements(camera_pos: np.ndarray, target_pos: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def candidate_placements(
+    camera_pos: np.ndarray, target_pos: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Candidate (centre, rotation) poses on the camera-to-target line of sight, in trial order."""
     camera_pos = np.asarray(camera_pos, float)
     view = np.asarray(target_pos, float) - camera_pos
@@ -159,7 +161,9 @@ def candidate_placements(camera_pos: np.ndarray, target_pos: np.ndarray) -> list
 OCCLUDER_POINT_MARGIN = 0.01
 
 
-def points_on_occluder(xyz: np.ndarray, pose: np.ndarray, margin: float = OCCLUDER_POINT_MARGIN) -> np.ndarray:
+def points_on_occluder(
+    xyz: np.ndarray, pose: np.ndarray, margin: float = OCCLUDER_POINT_MARGIN
+) -> np.ndarray:
     """Which cloud points lie on the occluder panel: (..., N) bool.
 
     Why: training-time labels for the occluder-dropout recipe (`policies/augment.py`); the panel is a
@@ -270,7 +274,9 @@ class OccluderPlacer:
         camera_pos = self.data.cam_xpos[camera_id].copy()
         candidates = candidate_placements(camera_pos, target_pos)
         if not candidates:  # target closer than the nearest candidate distance allows
-            candidates = [(camera_pos + 0.5 * (target_pos - camera_pos), panel_rotation_facing(target_pos - camera_pos))]
+            candidates = [
+                (camera_pos + 0.5 * (target_pos - camera_pos), panel_rotation_facing(target_pos - camera_pos))
+            ]
         best = None
         for centre, rot in candidates:
             self.set_pose(centre, rot)
@@ -284,6 +290,10 @@ class OccluderPlacer:
         if best is None:
             centre, rot = candidates[0]
             self.set_pose(centre, rot)
-            best = (centre, rot, self.visibility.visibility(self.data, target_geoms, (centre, rot, self.half)))
+            best = (
+                centre,
+                rot,
+                self.visibility.visibility(self.data, target_geoms, (centre, rot, self.half)),
+            )
         self.set_pose(best[0], best[1])
         return best[0], best[1], best[2], True

@@ -108,7 +108,9 @@ class TargetVisibility:
     def counts(self, data, target_geoms, panel=None, camera_pose=None) -> tuple[int, int]:
         """(N^occ, N^noOcc) of `target_geoms` from `camera_pose` = (pos, MuJoCo xmat) or the
         current active camera; `panel` = (centre, rotation, (a_y, a_z)) or None (no occluder)."""
-        seg, depth = self.renderer.render_segmentation(data, self.camera_id, pose=camera_pose, with_depth=True)
+        seg, depth = self.renderer.render_segmentation(
+            data, self.camera_id, pose=camera_pose, with_depth=True
+        )
         v, u = np.nonzero(np.isin(seg, np.asarray(target_geoms)))
         n_no_occ = int(u.size)
         if panel is None or n_no_occ == 0:

@@ -31,13 +31,13 @@ every episode as a Ray task (pip install 'lerobot_env_bavo[ray]'), on a private 
 or on the cluster at --ray-address (`ray start --head` prints it). Records are written by this process as
 episodes finish, so resume, the lock and results.json are the same; a Ray worker lost mid-episode is retried.
 
-Grid: `--grid FILE.yaml` runs methods x tasks x conditions x training seeds in one command (the file lists them;
-`configs/grid_expert.yaml` is an example, `lerobot_bavo/eval/grid.py` documents the format). Each (method,
-training seed) is an ordinary run under <output-dir>/runs/<method>/<label>/, so a killed grid re-run with the same
-command does only the unfinished episodes (and cells); <output-dir>/results.json holds every cell, results.md the
-table of mean ± std over training seeds, results.png SR / TPS / CVG per condition. --tasks, --conditions,
---episodes, --seed and --policy come from the file then; --workers, --executor, --ray-address and --videos apply
-(--videos defaults to 0 with --grid).
+Grid: `--grid FILE.yaml` runs methods x tasks x conditions x training seeds in one command (the file lists
+them; `configs/grid_expert.yaml` is an example, `lerobot_bavo/eval/grid.py` documents the format). Each
+(method, training seed) is an ordinary run under <output-dir>/runs/<method>/<label>/, so a killed grid re-run
+with the same command does only the unfinished episodes (and cells); <output-dir>/results.json holds every
+cell, results.md the table of mean ± std over training seeds, results.png SR / TPS / CVG per condition.
+--tasks, --conditions, --episodes, --seed and --policy come from the file then; --workers, --executor,
+--ray-address and --videos apply (--videos defaults to 0 with --grid).
 
 Policies: a LeRobot checkpoint directory (`.../pretrained_model`), `expert`
 (the privileged scripted expert with camera recovery) or `expert-frozen-camera` (same
@@ -77,32 +77,63 @@ def main(argv: list[str] | None = None) -> None:
 
     parser = argparse.ArgumentParser(prog="bavo-eval", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--policy", default=None,
-                        help="LeRobot checkpoint dir (.../pretrained_model), 'expert' or 'expert-frozen-camera' "
-                             "(required unless --grid)")
-    parser.add_argument("--grid", type=Path, default=None, metavar="FILE.yaml",
-                        help="run the grid of methods x tasks x conditions x training seeds the file lists (see "
-                             "above and configs/grid_expert.yaml) instead of one --policy")
+    parser.add_argument(
+        "--policy",
+        default=None,
+        help="LeRobot checkpoint dir (.../pretrained_model), 'expert' or 'expert-frozen-camera' "
+        "(required unless --grid)",
+    )
+    parser.add_argument(
+        "--grid",
+        type=Path,
+        default=None,
+        metavar="FILE.yaml",
+        help="run the grid of methods x tasks x conditions x training seeds the file lists (see "
+        "above and configs/grid_expert.yaml) instead of one --policy",
+    )
     parser.add_argument("--tasks", default=None, help="comma-separated tasks (default: all registered)")
-    parser.add_argument("--conditions", default=None, help="comma-separated conditions (default clean,stage,random)")
-    parser.add_argument("--episodes", type=int, default=None, help="episodes per (task, condition) (default 20)")
-    parser.add_argument("--seed", type=int, default=None, help="first seed (default 1000, LeRobot's start seed)")
+    parser.add_argument(
+        "--conditions", default=None, help="comma-separated conditions (default clean,stage,random)"
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=None, help="episodes per (task, condition) (default 20)"
+    )
+    parser.add_argument(
+        "--seed", type=int, default=None, help="first seed (default 1000, LeRobot's start seed)"
+    )
     parser.add_argument("--output-dir", type=Path, required=True, help="where results and videos go")
     add_executor_arguments(parser, 1, "parallel worker processes (default 1)",
                            "where episodes run: local worker processes (default) or Ray tasks")
-    parser.add_argument("--videos", type=int, default=None, help="episodes recorded per cell (default 1; 0 with --grid)")
-    parser.add_argument("--rerun", type=Path, default=None, metavar="DIR",
-                        help="also write one rerun recording (.rrd) per episode run into DIR (view with bavo-view --rrd)")
-    parser.add_argument("--trust-remote-code", action="store_true",
-                        help="load processor steps and policy types that are neither LeRobot's audited ones nor "
-                             "lerobot_bavo's (they run arbitrary code when loaded: only for checkpoints you trust)")
-    parser.add_argument("--point-frame", choices=POINT_FRAMES, default=None,
-                        help="frame of the env's point clouds when nothing records the checkpoint's (default: the "
-                             "frame its training dataset records, else base); a conflicting value is refused")
+    parser.add_argument(
+        "--videos", type=int, default=None, help="episodes recorded per cell (default 1; 0 with --grid)"
+    )
+    parser.add_argument(
+        "--rerun",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also write one rerun recording (.rrd) per episode run into DIR (view with bavo-view --rrd)",
+    )
+    parser.add_argument(
+        "--trust-remote-code",
+        action="store_true",
+        help="load processor steps and policy types that are neither LeRobot's audited ones nor "
+        "lerobot_bavo's (they run arbitrary code when loaded: only for checkpoints you trust)",
+    )
+    parser.add_argument(
+        "--point-frame",
+        choices=POINT_FRAMES,
+        default=None,
+        help="frame of the env's point clouds when nothing records the checkpoint's (default: the "
+        "frame its training dataset records, else base); a conflicting value is refused",
+    )
     args = parser.parse_args(argv)
     if args.grid is not None:
-        given = [f"--{name.replace('_', '-')}" for name in ("policy", "tasks", "conditions", "episodes", "seed",
-                                                            "point_frame", "rerun") if getattr(args, name) is not None]
+        given = [
+            f"--{name.replace('_', '-')}"
+            for name in ("policy", "tasks", "conditions", "episodes", "seed", "point_frame", "rerun")
+            if getattr(args, name) is not None
+        ]
         if given:
             parser.error(f"{', '.join(given)} cannot be used with --grid (the grid file sets them)")
     elif args.policy is None:
@@ -137,10 +168,21 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(f"bavo-eval: {e}") from None
         return
     try:
-        evaluate(args.policy, args.tasks.split(","), args.conditions.split(","), args.episodes, args.seed,
-                 args.output_dir, workers=args.workers, videos=args.videos, trust_remote_code=args.trust_remote_code,
-                 point_frame=args.point_frame, rerun_dir=args.rerun, executor=args.executor,
-                 ray_address=args.ray_address)
+        evaluate(
+            args.policy,
+            args.tasks.split(","),
+            args.conditions.split(","),
+            args.episodes,
+            args.seed,
+            args.output_dir,
+            workers=args.workers,
+            videos=args.videos,
+            trust_remote_code=args.trust_remote_code,
+            point_frame=args.point_frame,
+            rerun_dir=args.rerun,
+            executor=args.executor,
+            ray_address=args.ray_address,
+        )
     except (CheckpointMismatchError, UntrustedCheckpointError) as e:  # raised while a worker loads the policy
         raise SystemExit(f"bavo-eval: {e}") from None
 

@@ -15,12 +15,13 @@ A grid file (YAML) names the cells; `configs/grid_expert.yaml` is an example:
       maniflow: [ckpt_seed0, ckpt_seed1]    # a list is a training-seed axis labelled 0, 1, ...
 
 The file is UTF-8 YAML of at most `MAX_GRID_BYTES`, without anchors or aliases (`&name`, `*name`; see
-`load_grid`). Relative checkpoint paths are resolved against the current directory. Every (method, training seed) is one
-ordinary `bavo-eval` run in `<output-dir>/runs/<method>/<label>/` (its own run.json, episodes.jsonl,
-results.json), so a killed grid re-run with the same command keeps every finished episode and with them every
-finished cell, and runs only what is missing. The grid then writes, in `<output-dir>`:
+`load_grid`). Relative checkpoint paths are resolved against the current directory. Every (method, training
+seed) is one ordinary `bavo-eval` run in `<output-dir>/runs/<method>/<label>/` (its own run.json,
+episodes.jsonl, results.json), so a killed grid re-run with the same command keeps every finished episode and
+with them every finished cell, and runs only what is missing. The grid then writes, in `<output-dir>`:
 
-  results.json  every cell: each training seed's SR / TPS / CVG / Joint and n_episodes, their mean and std over
+  results.json  every cell: each training seed's SR / TPS / CVG / Joint and n_episodes, their mean and std
+  over
                 training seeds, and per method and condition the same for the mean over its tasks;
   results.md    the table: mean ± std over training seeds (std: the sample standard deviation, n - 1; a method
                 with one training seed shows its value alone);
@@ -57,7 +58,8 @@ class GridError(ValueError):
 @dataclass(frozen=True)
 class Method:
     name: str
-    checkpoints: dict[str, str]  # training-seed label -> policy (expert name or checkpoint folder, as written)
+    # training-seed label -> policy (expert name or checkpoint folder, as written)
+    checkpoints: dict[str, str]
     tasks: tuple[str, ...]
     conditions: tuple[str, ...]
 
@@ -92,29 +94,37 @@ def _names(value, what: str, known, where: str) -> tuple[str, ...]:
 
 
 def _checkpoints(value, where: str) -> dict[str, str]:
-    """A method's training-seed axis: one policy (label "0"), a list (labels "0", "1", ...) or label -> policy."""
+    """A method's training-seed axis: one policy (label "0"), a list (labels "0", "1", ...) or label ->
+    policy."""
     if isinstance(value, str):
         value = [value]
     if isinstance(value, list):
         value = {str(i): v for i, v in enumerate(value)}
     if not isinstance(value, dict) or not value:
-        raise GridError(f"{where}: give one policy, a list of checkpoints (one per training seed) or a mapping "
-                        f"label -> checkpoint, got {short_repr(value)}")
+        raise GridError(
+            f"{where}: give one policy, a list of checkpoints (one per training seed) or a mapping "
+            f"label -> checkpoint, got {short_repr(value)}"
+        )
     out = {}
     for label, policy in value.items():
         label = str(label)
         if not _NAME.match(label):
-            raise GridError(f"{where}: training-seed label {short_repr(label)} must be a plain name (letters, digits, "
-                            "_ . + -)")
+            raise GridError(
+                f"{where}: training-seed label {short_repr(label)} must be a plain name (letters, digits, "
+                "_ . + -)"
+            )
         if not isinstance(policy, str) or not policy:
-            raise GridError(f"{where}: checkpoint of {short_repr(label)} must be a path or an expert name, got "
-                            f"{short_repr(policy)}")
+            raise GridError(
+                f"{where}: checkpoint of {short_repr(label)} must be a path or an expert name, got "
+                f"{short_repr(policy)}"
+            )
         out[label] = policy
     return out
 
 
 def check_policy(policy: str, where: str) -> None:
-    """An expert name, or a folder holding a LeRobot checkpoint (config.json); else a `GridError` naming it."""
+    """An expert name, or a folder holding a LeRobot checkpoint (config.json); else a `GridError` naming
+    it."""
     from lerobot_bavo.eval.rollout import EXPERT_POLICIES
 
     if policy in EXPERT_POLICIES:
@@ -123,13 +133,19 @@ def check_policy(policy: str, where: str) -> None:
     try:
         exists, has_config = path.exists(), (path / "config.json").is_file()
     except OSError as e:  # e.g. a name too long for the file system
-        raise GridError(f"{where}: checkpoint {short_repr(policy)} cannot be looked up ({e.strerror})") from None
+        raise GridError(
+            f"{where}: checkpoint {short_repr(policy)} cannot be looked up ({e.strerror})"
+        ) from None
     if not exists:
-        raise GridError(f"{where}: checkpoint {short_repr(policy)} not found ({path.resolve()}; relative paths are "
-                        f"resolved against the current directory); or use {' / '.join(EXPERT_POLICIES)}")
+        raise GridError(
+            f"{where}: checkpoint {short_repr(policy)} not found ({path.resolve()}; relative paths are "
+            f"resolved against the current directory); or use {' / '.join(EXPERT_POLICIES)}"
+        )
     if not has_config:
-        raise GridError(f"{where}: {short_repr(policy)} is not a LeRobot checkpoint folder (no config.json in "
-                        f"{path.resolve()})")
+        raise GridError(
+            f"{where}: {short_repr(policy)} is not a LeRobot checkpoint folder (no config.json in "
+            f"{path.resolve()})"
+        )
 
 
 def parse_grid(data, source: str = "grid") -> Grid:
@@ -138,10 +154,14 @@ def parse_grid(data, source: str = "grid") -> Grid:
     from lerobot_bavo.envs.tasks import TASKS
 
     if not isinstance(data, dict):
-        raise GridError(f"{source}: a grid file is a mapping with keys {', '.join(TOP_KEYS)}, got {type(data).__name__}")
+        raise GridError(
+            f"{source}: a grid file is a mapping with keys {', '.join(TOP_KEYS)}, got {type(data).__name__}"
+        )
     unknown = sorted(set(map(str, data)) - set(TOP_KEYS))
     if unknown:
-        raise GridError(f"{source}: unknown key {short_repr(unknown)[1:-1]}; a grid file has {', '.join(TOP_KEYS)}")
+        raise GridError(
+            f"{source}: unknown key {short_repr(unknown)[1:-1]}; a grid file has {', '.join(TOP_KEYS)}"
+        )
     tasks = _names(data.get("tasks", list(TASKS)), "tasks", list(TASKS), f"{source}: tasks")
     conditions = _names(data.get("conditions", list(DEFAULT_CONDITIONS)), "conditions", list(CONDITIONS),
                         f"{source}: conditions")
@@ -167,8 +187,12 @@ def parse_grid(data, source: str = "grid") -> Grid:
                 raise GridError(f"{where}: unknown key {short_repr(unknown)[1:-1]}; a method has "
                                 f"{', '.join(METHOD_KEYS)}")
             if "checkpoints" not in spec:
-                raise GridError(f"{where}: missing key 'checkpoints' (one policy, or one checkpoint per training seed)")
-            m_tasks = _names(spec.get("tasks", list(tasks)), "tasks", list(tasks), f"{where}.tasks (of the grid's)")
+                raise GridError(
+                    f"{where}: missing key 'checkpoints' (one policy, or one checkpoint per training seed)"
+                )
+            m_tasks = _names(
+                spec.get("tasks", list(tasks)), "tasks", list(tasks), f"{where}.tasks (of the grid's)"
+            )
             m_conds = _names(spec.get("conditions", list(conditions)), "conditions", list(conditions),
                              f"{where}.conditions (of the grid's)")
             checkpoints = _checkpoints(spec["checkpoints"], f"{where}.checkpoints")
@@ -184,16 +208,21 @@ def parse_grid(data, source: str = "grid") -> Grid:
 def _no_aliases_loader():
     """PyYAML's safe loader refusing anchors and aliases (`&name`, `*name`).
 
-    Why: aliases let a few hundred bytes stand for a structure of billions of items (a 456-byte "billion laughs"
-    under `tasks:` took 18 s and 2.3 GB, in the error message's repr). A grid file never needs them."""
+    Why: aliases let a few hundred bytes stand for a structure of billions of items (a 456-byte "billion
+    laughs" under `tasks:` took 18 s and 2.3 GB, in the error message's repr). A grid file never needs
+    them."""
     import yaml
 
     class NoAliasesLoader(yaml.SafeLoader):
         def compose_node(self, parent, index):
             event = self.peek_event()
             if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None) is not None:
-                raise yaml.composer.ComposerError(None, None, "anchors and aliases (&name, *name) are not allowed in "
-                                                  "a grid file; write the values out", event.start_mark)
+                raise yaml.composer.ComposerError(
+                    None,
+                    None,
+                    "anchors and aliases (&name, *name) are not allowed in a grid file; write the values out",
+                    event.start_mark,
+                )
             return super().compose_node(parent, index)
 
     return NoAliasesLoader
@@ -211,8 +240,10 @@ def load_grid(path: str | Path) -> Grid:
     except OSError as e:
         raise GridError(f"grid file {path}: cannot read it ({e.strerror})") from None
     if len(raw) > MAX_GRID_BYTES:
-        raise GridError(f"grid file {path} is over {MAX_GRID_BYTES} bytes; a grid file lists a few methods and "
-                        "checkpoints")
+        raise GridError(
+            f"grid file {path} is over {MAX_GRID_BYTES} bytes; a grid file lists a few methods and "
+            "checkpoints"
+        )
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
@@ -241,7 +272,8 @@ def mean_std(values: list[float | None]) -> tuple[float | None, float | None]:
 
 
 def aggregate_seeds(per_seed: dict[str, dict]) -> dict:
-    """One cell over training seeds: `per_seed` label -> {sr, tps, cvg, joint, ...} -> the same plus mean / std."""
+    """One cell over training seeds: `per_seed` label -> {sr, tps, cvg, joint, ...} -> the same plus mean /
+    std."""
     mean, std = {}, {}
     for key in METRICS:
         mean[key], std[key] = mean_std([cell.get(key) for cell in per_seed.values()])
@@ -265,7 +297,11 @@ def method_results(method: Method, runs: dict[str, dict]) -> dict:
     if len(method.tasks) > 1:
         for cond in method.conditions:
             over_tasks[cond] = aggregate_seeds(
-                {label: mean_over_tasks([res["cells"][f"{t}/{cond}"] for t in method.tasks]) for label, res in runs.items()})
+                {
+                    label: mean_over_tasks([res["cells"][f"{t}/{cond}"] for t in method.tasks])
+                    for label, res in runs.items()
+                }
+            )
     return {"checkpoints": dict(method.checkpoints), "tasks": list(method.tasks),
             "conditions": list(method.conditions), "cells": cells, "mean_over_tasks": over_tasks}
 
@@ -293,9 +329,16 @@ def grid_markdown(results: dict) -> str:
     names = {k: label.split(" (")[0] for k, label in CELL_METRICS.items()}  # "SR (%)" -> "SR"
     cols = _columns(results)
     last_seed = results["seed"] + results["episodes"] - 1
-    lines = [(f"{results['episodes']} episodes per cell (seeds {results['seed']}-{last_seed}); values are mean ± std "
-              "over training seeds (sample std; one value where a method has one training seed); SR, TPS in %, CVG in "
-              "pp (Random-time only)."), ""]
+    lines = [
+        (
+            f"{results['episodes']} episodes per cell (seeds {results['seed']}-{last_seed}); values are mean "
+            "± std "
+            "over training seeds (sample std; one value where a method has one training seed); SR, TPS in %, "
+            "CVG in "
+            "pp (Random-time only)."
+        ),
+        "",
+    ]
     lines.append("| method | seeds | task | " + " | ".join(f"{c} {names[m]}" for c, m in cols) + " |")
     lines.append("|---|---|---|" + "---|" * len(cols))
     for name, m in results["methods"].items():
@@ -303,14 +346,17 @@ def grid_markdown(results: dict) -> str:
         if m["mean_over_tasks"]:
             rows.append((f"**mean of {len(m['tasks'])}**", m["mean_over_tasks"]))
         for label, by_cond in rows:
-            vals = [fmt_mean_std(by_cond[c]["mean"][k], by_cond[c]["std"][k]) if by_cond.get(c) else "-" for c, k in cols]
+            vals = [
+                fmt_mean_std(by_cond[c]["mean"][k], by_cond[c]["std"][k]) if by_cond.get(c) else "-"
+                for c, k in cols
+            ]
             lines.append(f"| {name} | {len(m['checkpoints'])} | {label} | " + " | ".join(vals) + " |")
     return "\n".join(lines) + "\n"
 
 
 def grid_plot(results: dict) -> bytes:
-    """SR / TPS / CVG (rows) per condition, one column per task plus the mean over tasks, a bar per method, as PNG
-    bytes (`run_grid` writes them with the other results, all or none)."""
+    """SR / TPS / CVG (rows) per condition, one column per task plus the mean over tasks, a bar per method, as
+    PNG bytes (`run_grid` writes them with the other results, all or none)."""
     import io
 
     import matplotlib
@@ -322,8 +368,9 @@ def grid_plot(results: dict) -> bytes:
     panels = tasks + (["mean over tasks"] if len(tasks) > 1 else [])
     methods = list(results["methods"])
     conds = list(results["conditions"])
-    fig, axes = plt.subplots(len(SHOWN), len(panels), figsize=(max(6.0, 2.6 * len(panels) + 1), 7.5), squeeze=False,
-                             sharey="row")
+    fig, axes = plt.subplots(
+        len(SHOWN), len(panels), figsize=(max(6.0, 2.6 * len(panels) + 1), 7.5), squeeze=False, sharey="row"
+    )
     width = 0.8 / max(1, len(methods))
     for col, panel in enumerate(panels):
         for row, (metric, label) in enumerate((k, CELL_METRICS[k]) for k in SHOWN):
@@ -341,7 +388,15 @@ def grid_plot(results: dict) -> bytes:
                     xs.append(j - 0.4 + width * (i + 0.5))
                     ys.append(cell["mean"][metric])
                     es.append(cell["std"][metric] or 0.0)
-                ax.bar(xs, ys, width, yerr=es, capsize=2, color=f"C{i}", label=name if (row, col) == (0, 0) else None)
+                ax.bar(
+                    xs,
+                    ys,
+                    width,
+                    yerr=es,
+                    capsize=2,
+                    color=f"C{i}",
+                    label=name if (row, col) == (0, 0) else None,
+                )
             ax.set_xticks(range(len(conds)), conds)
             ax.set_ylim(0, 105)
             if col == 0:
@@ -388,7 +443,9 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
     try:
         write_results({output_dir / "grid.json": json.dumps(grid.as_dict(), indent=1)})
         pending = pending_episodes(grid, output_dir)
-        total = sum(len(m.checkpoints) * len(m.tasks) * len(m.conditions) for m in grid.methods) * grid.episodes
+        total = (
+            sum(len(m.checkpoints) * len(m.tasks) * len(m.conditions) for m in grid.methods) * grid.episodes
+        )
         print(f"bavo-eval --grid: {total} episodes in {sum(len(m.checkpoints) for m in grid.methods)} runs; "
               f"{total - pending} finished, {pending} to run")
         with contextlib.ExitStack() as stack:
@@ -411,8 +468,13 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
         for name, m in results["methods"].items():
             m["runs"] = {label: str(run_dir(Path("."), name, label)) for label in m["checkpoints"]}
         table = grid_markdown(results)
-        write_results({output_dir / "results.json": json.dumps(results, indent=1), output_dir / "results.md": table,
-                       output_dir / "results.png": grid_plot(results)})
+        write_results(
+            {
+                output_dir / "results.json": json.dumps(results, indent=1),
+                output_dir / "results.md": table,
+                output_dir / "results.png": grid_plot(results),
+            }
+        )
         print(table)
         return results
     finally:

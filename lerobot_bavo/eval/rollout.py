@@ -73,8 +73,10 @@ class LeRobotPolicyAgent:
                   "image_width": s.image_width, "environment_state": getattr(env, "environment_state", False)}
         wrong = mismatches(env_settings(path), actual)
         if wrong:
-            raise CheckpointMismatchError(f"the checkpoint at {path} was trained on other observations than this "
-                                          "env gives: " + "; ".join(wrong))
+            raise CheckpointMismatchError(
+                f"the checkpoint at {path} was trained on other observations than this "
+                "env gives: " + "; ".join(wrong)
+            )
         self._torch = torch
         cfg = load_policy_config(path)  # the config's own checks and size bounds
         check_tensor_files(path)  # a truncated model.safetensors: an error naming it, not a SafetensorError
@@ -230,13 +232,16 @@ def run_episode(env, agent, seed: int, video_path: Path | None = None, video_eve
         import imageio.v2 as imageio
 
         video_path.parent.mkdir(parents=True, exist_ok=True)
-        imageio.mimsave(video_path, frames, fps=max(1, env.metadata["render_fps"] // video_every), macro_block_size=1)
+        imageio.mimsave(
+            video_path, frames, fps=max(1, env.metadata["render_fps"] // video_every), macro_block_size=1
+        )
         record["video"] = str(video_path)
     return record
 
 
 def _event_record(event: dict) -> dict:
-    """An event's placement; the occluder stays at this pose (centre, wxyz quaternion) until the next event."""
+    """An event's placement; the occluder stays at this pose (centre, wxyz quaternion) until the next
+    event."""
     return {"index": int(event["index"]), "step": int(event["step"]), "target": event["target"],
             "visibility_at_start": float(event["visibility_at_start"]), "fallback": bool(event["fallback"]),
             "occluder_pos": [float(x) for x in event["occluder_pos"]],

@@ -26,7 +26,8 @@ _ENV_AGENT = ProcessCache(close=_close_env_agent)
 
 
 def run_job(job: dict) -> dict:
-    """One episode (a job of `evaluate`) in a worker process; envs and agents are cached per (policy, task, condition)."""
+    """One episode (a job of `evaluate`) in a worker process; envs and agents are cached per (policy, task,
+    condition)."""
     from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
 
@@ -101,8 +102,12 @@ def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
     data = log_path.read_bytes()
     complete = data[: data.rfind(b"\n") + 1]
     if len(complete) < len(data):
-        print(f"bavo-eval: warning: dropping an incomplete last line of {log_path} ({len(data) - len(complete)} "
-              "bytes, a torn write); its episode runs again", file=sys.stderr)
+        print(
+            f"bavo-eval: warning: dropping an incomplete last line of {log_path} "
+            f"({len(data) - len(complete)} "
+            "bytes, a torn write); its episode runs again",
+            file=sys.stderr,
+        )
         with open(log_path, "r+b") as fh:
             fh.truncate(len(complete))
     for number, line in enumerate(complete.decode("utf-8", errors="replace").splitlines(), start=1):
@@ -118,8 +123,8 @@ def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
 
 
 def env_kwargs_for_run(policy: str, point_frame: str | None = None) -> dict:
-    """The `BavoEnv` settings of a run: what the checkpoint records (`lerobot_bavo.checkpoints.env_settings`), with
-    `point_frame` from the command line where nothing records it. A --point-frame that contradicts the
+    """The `BavoEnv` settings of a run: what the checkpoint records (`lerobot_bavo.checkpoints.env_settings`),
+    with `point_frame` from the command line where nothing records it. A --point-frame that contradicts the
     checkpoint's training data is refused, listing both."""
     import sys
 
@@ -132,15 +137,21 @@ def env_kwargs_for_run(policy: str, point_frame: str | None = None) -> dict:
         raise SystemExit(f"bavo-eval: {e}") from None
     recorded = kwargs.get("point_frame")
     if point_frame is not None and recorded is not None and point_frame != recorded:
-        raise SystemExit(f"bavo-eval: --point-frame {point_frame} conflicts with the checkpoint: point_frame: "
-                         f"checkpoint {recorded!r} (its training dataset's bavo_collection.json), asked {point_frame!r}")
+        raise SystemExit(
+            f"bavo-eval: --point-frame {point_frame} conflicts with the checkpoint: point_frame: "
+            f"checkpoint {recorded!r} (its training dataset's bavo_collection.json), asked {point_frame!r}"
+        )
     if point_frame is not None:
         kwargs["point_frame"] = point_frame
     elif "n_points" in kwargs and recorded is None:
         kwargs["point_frame"] = "base"
-        print(f"bavo-eval: warning: nothing on this machine records the point-cloud frame the checkpoint at {policy} "
-              "was trained on (its train_config.json names no bavo-collect dataset found here); evaluating on "
-              "base-frame clouds, pass --point-frame camera for a camera-frame model", file=sys.stderr)
+        print(
+            f"bavo-eval: warning: nothing on this machine records the point-cloud frame the checkpoint at "
+            f"{policy} "
+            "was trained on (its train_config.json names no bavo-collect dataset found here); evaluating on "
+            "base-frame clouds, pass --point-frame camera for a camera-frame model",
+            file=sys.stderr,
+        )
     return kwargs
 
 
@@ -162,8 +173,10 @@ def append_record(log, record: dict) -> None:
         while data:
             data = data[log.write(data):]
     except OSError as e:
-        raise SystemExit(f"bavo-eval: writing {log.name} failed ({e.strerror}); free some space and re-run the same "
-                         "command: finished episodes are kept and the cut-off last line is dropped") from None
+        raise SystemExit(
+            f"bavo-eval: writing {log.name} failed ({e.strerror}); free some space and re-run the same "
+            "command: finished episodes are kept and the cut-off last line is dropped"
+        ) from None
 
 
 
@@ -184,8 +197,8 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
              ray_address: str | None = None) -> dict:
     """Run (or resume) the evaluation and write results.json / results.md; returns the results.
     `rerun_dir`: also write a rerun recording of every episode run there (`lerobot_bavo.viz`).
-    `executor`: "local" (a `WorkerPool` of `workers` processes) or "ray" (a `RayPool`: Ray tasks on the cluster
-    at `ray_address`, or on a private local Ray with `workers` CPUs)."""
+    `executor`: "local" (a `WorkerPool` of `workers` processes) or "ray" (a `RayPool`: Ray tasks on the
+    cluster at `ray_address`, or on a private local Ray with `workers` CPUs)."""
     from tqdm import tqdm
 
     from lerobot_bavo.checkpoints import (
@@ -221,7 +234,8 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     else:
         policy_id = settings["policy"] = str(Path(policy).resolve())
         try:  # refuse untrusted processor steps and policy types here, before any worker imports them; then
-            # configs out of bounds (`lerobot_bavo.limits`) and cut-off weights, before any env or model is built
+            # configs out of bounds (`lerobot_bavo.limits`) and cut-off weights, before any env or model is
+            # built
             check_processor_steps(policy, trust_remote_code=trust_remote_code)
             load_policy_config(policy)
             check_tensor_files(policy)
@@ -233,15 +247,31 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
 
     lock = claim_output_dir(output_dir, "bavo-eval")
     try:
-        return _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed,
-                                output_dir, workers, videos, trust_remote_code, tqdm, rerun_dir, executor, ray_address)
+        return _evaluate_locked(
+            policy,
+            policy_id,
+            settings,
+            env_kwargs,
+            tasks,
+            conditions,
+            episodes,
+            seed,
+            output_dir,
+            workers,
+            videos,
+            trust_remote_code,
+            tqdm,
+            rerun_dir,
+            executor,
+            ray_address,
+        )
     finally:
         lock.close()
 
 
 def claim_output_dir(output_dir: Path, holder: str):
-    """Create `output_dir` and take its exclusive lock (one bavo-eval run or grid per folder); returns the lock
-    to close when done. Errors name the folder and say what to do."""
+    """Create `output_dir` and take its exclusive lock (one bavo-eval run or grid per folder); returns the
+    lock to close when done. Errors name the folder and say what to do."""
     from lerobot_bavo.runtime.process import LockedError, exclusive_lock
 
     try:
@@ -254,27 +284,51 @@ def claim_output_dir(output_dir: Path, holder: str):
         raise SystemExit(f"bavo-eval: {e}; wait for it or use another --output-dir") from None
 
 
-def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions, episodes, seed, output_dir, workers,
-                     videos, trust_remote_code, tqdm, rerun_dir=None, executor="local", ray_address=None) -> dict:
+def _evaluate_locked(
+    policy,
+    policy_id,
+    settings,
+    env_kwargs,
+    tasks,
+    conditions,
+    episodes,
+    seed,
+    output_dir,
+    workers,
+    videos,
+    trust_remote_code,
+    tqdm,
+    rerun_dir=None,
+    executor="local",
+    ray_address=None,
+) -> dict:
     log_path = output_dir / "episodes.jsonl"
     settings_path = output_dir / "run.json"
     if settings_path.exists():
         try:
             previous = json.loads(settings_path.read_text())
         except json.JSONDecodeError as e:
-            raise SystemExit(f"bavo-eval: {settings_path} is not valid JSON ({e}); use another --output-dir") from None
+            raise SystemExit(
+                f"bavo-eval: {settings_path} is not valid JSON ({e}); use another --output-dir"
+            ) from None
         if not isinstance(previous, dict) or _identity(previous) != _identity(settings):
-            raise SystemExit(f"bavo-eval: {output_dir} holds a run with different settings {previous} (now "
-                             f"{settings}: another checkpoint, or the same path with other weights); use another "
-                             "--output-dir")
+            raise SystemExit(
+                f"bavo-eval: {output_dir} holds a run with different settings {previous} (now "
+                f"{settings}: another checkpoint, or the same path with other weights); use another "
+                "--output-dir"
+            )
     write_results({settings_path: json.dumps(settings)})
 
     done = read_episode_log(log_path)
     digest = settings.get("checkpoint_sha256")
-    foreign = sorted({r["checkpoint_sha256"] for r in done.values() if r.get("checkpoint_sha256", digest) != digest})
+    foreign = sorted(
+        {r["checkpoint_sha256"] for r in done.values() if r.get("checkpoint_sha256", digest) != digest}
+    )
     if foreign:
-        raise SystemExit(f"bavo-eval: {log_path} holds episodes of other checkpoints (sha256 {', '.join(foreign)}; "
-                         f"this one is {digest}); use another --output-dir")
+        raise SystemExit(
+            f"bavo-eval: {log_path} holds episodes of other checkpoints (sha256 {', '.join(foreign)}; "
+            f"this one is {digest}); use another --output-dir"
+        )
     jobs = []
     for task in tasks:
         for cond in conditions:
@@ -284,9 +338,19 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
                     continue
                 video = str(output_dir / "videos" / f"{task}_{cond}_seed{s}.mp4") if i < videos else None
                 rerun = str(Path(rerun_dir) / f"{task}_{cond}_seed{s}.rrd") if rerun_dir is not None else None
-                jobs.append({"policy": policy, "task": task, "condition": cond, "seed": s, "video": video, "rerun": rerun,
-                             "trust_remote_code": trust_remote_code, "env_kwargs": env_kwargs,
-                             "checkpoint_sha256": digest})
+                jobs.append(
+                    {
+                        "policy": policy,
+                        "task": task,
+                        "condition": cond,
+                        "seed": s,
+                        "video": video,
+                        "rerun": rerun,
+                        "trust_remote_code": trust_remote_code,
+                        "env_kwargs": env_kwargs,
+                        "checkpoint_sha256": digest,
+                    }
+                )
     if done:
         print(f"bavo-eval: resuming; {len(done)} finished episodes kept, {len(jobs)} to run")
 
@@ -306,7 +370,9 @@ def _evaluate_locked(policy, policy_id, settings, env_kwargs, tasks, conditions,
     results = {"version": RESULTS_VERSION, "policy": policy_id, "tasks": tasks, "conditions": conditions,
                "episodes": episodes, "seed": seed, "cells": cells}
     table = markdown_table(results)
-    write_results({output_dir / "results.json": json.dumps(results, indent=1), output_dir / "results.md": table})
+    write_results(
+        {output_dir / "results.json": json.dumps(results, indent=1), output_dir / "results.md": table}
+    )
     print(table)
     return results
 
@@ -320,6 +386,8 @@ def write_results(files: dict) -> None:
         write_files_atomic(files)
     except OSError as e:
         names = ", ".join(sorted({str(Path(p).name) for p in files}))
-        raise SystemExit(f"bavo-eval: writing {names} in {Path(next(iter(files))).parent} failed ({e.strerror}); "
-                         "the previous files are unchanged; free some space and re-run the same command: finished "
-                         "episodes are kept") from None
+        raise SystemExit(
+            f"bavo-eval: writing {names} in {Path(next(iter(files))).parent} failed ({e.strerror}); "
+            "the previous files are unchanged; free some space and re-run the same command: finished "
+            "episodes are kept"
+        ) from None

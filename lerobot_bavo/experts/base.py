@@ -159,14 +159,24 @@ class ScriptedExpert(abc.ABC):
         plans = []
         for arm, target in ((self.left, left), (self.right, right)):
             if target is not None:
-                plans.append((arm, arm.pos.copy(), arm.rot.copy(), np.asarray(target[0], float), np.asarray(target[1], float)))
+                plans.append(
+                    (
+                        arm,
+                        arm.pos.copy(),
+                        arm.rot.copy(),
+                        np.asarray(target[0], float),
+                        np.asarray(target[1], float),
+                    )
+                )
         for k in range(1, steps + 1):
             a = smoothstep(k / steps)
             for arm, p0, r0, p1, r1 in plans:
                 arm.set_pose(p0 + (p1 - p0) * a, slerp_matrix(r0, r1, a))
             yield
 
-    def grip(self, steps: int, left: float | None = None, right: float | None = None, phase: str | None = None):
+    def grip(
+        self, steps: int, left: float | None = None, right: float | None = None, phase: str | None = None
+    ):
         """Ramp the gripper commands (0 closed .. 1 open) over `steps` control steps."""
         if phase:
             self.phase = phase

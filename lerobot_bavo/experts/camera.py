@@ -95,7 +95,9 @@ class ViewRecovery:
         return bool(done)
 
 
-def plan_view_recovery(env, camera: CameraController, event, search: ViewSearch, resume_phase: str) -> ViewRecovery:
+def plan_view_recovery(
+    env, camera: CameraController, event, search: ViewSearch, resume_phase: str
+) -> ViewRecovery:
     """Best reachable camera set point for seeing `event`'s target past its occluder.
 
     Candidates: staying where the camera is, and the home set point shifted by every combination of

@@ -51,7 +51,9 @@ class DrawerStowingExpert(ScriptedExpert):
         l_rot = topdown_rot(LEFT_CLOSING, yaw)
         grasp = block + rot_z(yaw) @ BLOCK_GRASP_OFFSET
         pull_to = self.right.pos + [0.0, -PULL, 0.0]
-        yield from self.move(40, right=(pull_to, r_rot), left=(grasp + [0, 0, 0.10], l_rot), phase="pull_open")
+        yield from self.move(
+            40, right=(pull_to, r_rot), left=(grasp + [0, 0, 0.10], l_rot), phase="pull_open"
+        )
         yield from self.wait(4)
         # -- let go of the bar and park the right arm out of the camera's way.
         yield from self.grip(8, right=HANDLE_OPENING, phase="right_release")

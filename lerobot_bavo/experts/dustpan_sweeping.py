@@ -28,7 +28,9 @@ from lerobot_bavo.sim.transforms import rot_z, topdown_rot, yaw_of
 PAN_GRASP = np.array([HANDLE_POS[0], 0.0, HANDLE_POS[2]])  # gripper centre in the pan frame
 BROOM_GRASP_X = 0.075  # m along the broom handle from the head centre
 _t = (BROOM_GRASP_X - BROOM_HANDLE_FROM[0]) / (BROOM_HANDLE_TO[0] - BROOM_HANDLE_FROM[0])
-BROOM_GRASP = np.array([BROOM_GRASP_X, 0.0, BROOM_HANDLE_FROM[2] + _t * (BROOM_HANDLE_TO[2] - BROOM_HANDLE_FROM[2])])
+BROOM_GRASP = np.array(
+    [BROOM_GRASP_X, 0.0, BROOM_HANDLE_FROM[2] + _t * (BROOM_HANDLE_TO[2] - BROOM_HANDLE_FROM[2])]
+)
 APPROACH_HEIGHT = 0.08  # m above the grasp point before descending
 PAN_GAP = 0.035  # m, cube centre ahead of the entrance line once the pan is placed
 PAN_BACKOFF = 0.03  # m, extra distance kept while the pan slides sideways

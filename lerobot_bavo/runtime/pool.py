@@ -106,14 +106,21 @@ EXECUTORS = ("local", "ray")  # where `bavo-eval` / `bavo-collect` run their epi
 
 def add_executor_arguments(parser, workers_default: int, workers_help: str, executor_help: str) -> None:
     """The `--workers`, `--executor` and `--ray-address` flags both CLIs share (same meaning, same checks)."""
-    parser.add_argument("--workers", type=int, default=workers_default,
-                        help=f"{workers_help}; with --executor ray and no --ray-address, the CPUs of the private "
-                             "local Ray")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=workers_default,
+        help=f"{workers_help}; with --executor ray and no --ray-address, the CPUs of the private local Ray",
+    )
     parser.add_argument("--executor", choices=EXECUTORS, default="local",
                         help=f"{executor_help} (needs the 'ray' extra: pip install 'lerobot_env_bavo[ray]')")
-    parser.add_argument("--ray-address", default=None, metavar="ADDR",
-                        help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: "
-                             "start a private local Ray with --workers CPUs")
+    parser.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="with --executor ray: the Ray cluster to use (e.g. HEAD_IP:6379, or 'auto'); default: "
+        "start a private local Ray with --workers CPUs",
+    )
 
 
 def executor_problem(executor: str, ray_address: str | None, workers: int) -> str | None:

@@ -6,10 +6,11 @@ multiprocessing resource tracker, whose pipe they kept open. Each worker now wat
 exits within a second of losing it (a parent-death signal alone is tied to the thread that spawned
 the worker and would also fire when a short-lived spawning thread ends, so a poll is used). The watch
 starts in the pool initializer, so a spawned worker killed while it is still importing (seconds on an
-idle machine, minutes on a saturated one) exits as soon as its imports finish. Two runs on one output folder (or one dataset, reached
-through a symlink) corrupted each other; an advisory lock on the *resolved* path refuses the second.
-Pool workers (`bavo-collect`'s and `bavo-eval`'s) and `bavo-collect` itself also keep freed heap memory for reuse (`retain_freed_memory`):
-their per-episode arrays are large enough that glibc would otherwise map and zero them afresh every episode.
+idle machine, minutes on a saturated one) exits as soon as its imports finish. Two runs on one output folder
+(or one dataset, reached through a symlink) corrupted each other; an advisory lock on the *resolved* path
+refuses the second. Pool workers (`bavo-collect`'s and `bavo-eval`'s) and `bavo-collect` itself also keep
+freed heap memory for reuse (`retain_freed_memory`): their per-episode arrays are large enough that glibc
+would otherwise map and zero them afresh every episode.
 """
 
 from __future__ import annotations
@@ -68,7 +69,8 @@ def limit_threads() -> None:
 def one_thread_unless_set() -> None:
     """One BLAS / OpenMP / torch thread for an interactive command (`bavo-demo`) unless the user chose a
     count: OMP_NUM_THREADS (and OPENBLAS_NUM_THREADS) given in the environment are kept, and torch, if it is
-    loaded, then keeps its own choice too. Call it before numpy / torch load, and again once torch is loaded."""
+    loaded, then keeps its own choice too. Call it before numpy / torch load, and again once torch is
+    loaded."""
     global _USER_THREADS
     if _USER_THREADS is None:
         _USER_THREADS = "OMP_NUM_THREADS" in os.environ
@@ -90,12 +92,13 @@ def retain_freed_memory() -> bool:
     """Let glibc's allocator reuse freed memory for large arrays instead of unmapping it (glibc only).
 
     Why (issue 11): an episode's per-frame arrays (240 x 320 renders, ~110-310 MB per episode) are larger than
-    glibc's mmap threshold (at most 32 MB when adjusted dynamically), so each one was mapped fresh and unmapped
-    when freed, and every episode paid the kernel's page faults and zeroing again: 0.3-0.7 s of the episode's
-    final `np.stack` in 3 of 4 consecutive Drawer Stowing episodes. Serving such allocations from the heap,
-    and keeping freed heap memory instead of trimming it, makes the next episode reuse the same pages. Values
-    are unchanged (only where the memory comes from); a process keeps its peak heap size (a few hundred MB for
-    a collection worker). Returns False (and changes nothing) where `mallopt` is not available."""
+    glibc's mmap threshold (at most 32 MB when adjusted dynamically), so each one was mapped fresh and
+    unmapped when freed, and every episode paid the kernel's page faults and zeroing again: 0.3-0.7 s of the
+    episode's final `np.stack` in 3 of 4 consecutive Drawer Stowing episodes. Serving such allocations from
+    the heap, and keeping freed heap memory instead of trimming it, makes the next episode reuse the same
+    pages. Values are unchanged (only where the memory comes from); a process keeps its peak heap size (a few
+    hundred MB for a collection worker). Returns False (and changes nothing) where `mallopt` is not
+    available."""
     import ctypes
     import ctypes.util
 

@@ -16,14 +16,14 @@ Imported only for `--executor ray`: `--executor local` never imports Ray. Ray is
   exception raised by `fn` itself is not retried and is re-raised by `imap` as that exception's type.
 - `RayPool(workers, address)` connects to the cluster at `address` (`ray start --head` prints it; "auto"
   finds a local one) or, with no address, starts a private local Ray with `workers` CPUs, stopped again
-  by `shutdown` (no address given and RAY_ADDRESS set: that cluster). If Ray is already initialised in this process (tests, notebooks), it is used as it is.
-  When this pool initialises Ray, every worker gets one BLAS / OpenMP thread and headless GL (a local
-  Ray's workers inherit them from the environment Ray starts with, a cluster's through the job's
-  `runtime_env`), and a local Ray's workers get this package's source folder on PYTHONPATH, so a source
-  checkout runs unchanged; cluster nodes need the package installed (README, "Running on a Ray cluster").
-  A private Ray's workers run at nice 0 like a local pool's (Ray's default is 15: `RAY_worker_niceness`; a
-  cluster's is set where it is started, `RAY_worker_niceness=0 ray start ...`). A private Ray sends no usage
-  statistics (`RAY_USAGE_STATS_ENABLED=0`; it saves ~1 s of its start).
+  by `shutdown` (no address given and RAY_ADDRESS set: that cluster). If Ray is already initialised in this
+  process (tests, notebooks), it is used as it is. When this pool initialises Ray, every worker gets one BLAS
+  / OpenMP thread and headless GL (a local Ray's workers inherit them from the environment Ray starts with, a
+  cluster's through the job's `runtime_env`), and a local Ray's workers get this package's source folder on
+  PYTHONPATH, so a source checkout runs unchanged; cluster nodes need the package installed (README, "Running
+  on a Ray cluster"). A private Ray's workers run at nice 0 like a local pool's (Ray's default is 15:
+  `RAY_worker_niceness`; a cluster's is set where it is started, `RAY_worker_niceness=0 ray start ...`). A
+  private Ray sends no usage statistics (`RAY_USAGE_STATS_ENABLED=0`; it saves ~1 s of its start).
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ from pathlib import Path
 from typing import Any
 
 MAX_RETRIES = 3
-WORKER_NICENESS_VAR = "RAY_worker_niceness"  # Ray's config: the nice value of its worker processes (default 15)
+# Ray's config: the nice value of its worker processes (default 15)
+WORKER_NICENESS_VAR = "RAY_worker_niceness"
 USAGE_STATS_VAR = "RAY_USAGE_STATS_ENABLED"  # Ray's switch for its usage-statistics report (default on)
 EXTRA_HINT = "pip install 'lerobot_env_bavo[ray]'"
 
@@ -48,15 +49,17 @@ def import_ray():
     try:
         import ray
     except ImportError as e:
-        raise RayMissingError(f"--executor ray needs Ray, the optional 'ray' extra: {EXTRA_HINT} ({e})") from None
+        raise RayMissingError(
+            f"--executor ray needs Ray, the optional 'ray' extra: {EXTRA_HINT} ({e})"
+        ) from None
     return ray
 
 
 def worker_env_vars() -> dict[str, str]:
     """Environment of every Ray worker this pool starts: one BLAS / OpenMP thread (2-core machines: the
-    variables must be set before numpy loads, hence not in the task), headless GL, and this package's source folder ahead of the
-    driver's PYTHONPATH. (A Ray worker registers LeRobot's types only when a job loads a checkpoint: `import
-    lerobot_bavo` is light.)"""
+    variables must be set before numpy loads, hence not in the task), headless GL, and this package's source
+    folder ahead of the driver's PYTHONPATH. (A Ray worker registers LeRobot's types only when a job loads a
+    checkpoint: `import lerobot_bavo` is light.)"""
     source = str(Path(__file__).resolve().parents[2])
     path = [source] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and p != source]
     return {"OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1"),
@@ -91,12 +94,13 @@ class RayPool:
             kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": "WARNING"}
             address = address or os.environ.get("RAY_ADDRESS") or None
             env = worker_env_vars()
-            if address:  # a cluster: its nodes have the package installed; threads and GL through the runtime_env
+            # a cluster: its nodes have the package installed; threads and GL through the runtime_env
+            if address:
                 env.pop("PYTHONPATH")
                 ray.init(address=address, runtime_env={"env_vars": env}, **kwargs)
             else:  # a private Ray on this machine, `workers` CPUs, loopback only; its workers inherit this
-                # process's environment when Ray starts (faster than a runtime_env: ~0.4 s instead of ~5 s to the
-                # first task on 2 cores, as the prestarted workers are used)
+                # process's environment when Ray starts (faster than a runtime_env: ~0.4 s instead of ~5 s to
+                # the first task on 2 cores, as the prestarted workers are used)
                 saved = dict(os.environ)
                 os.environ.update(env)
                 # Ray starts its workers at nice 15 by default: beside any other load on a 2-core machine (a
@@ -115,19 +119,21 @@ class RayPool:
         cpus = int(ray.cluster_resources().get("CPU", workers))
         self.max_in_flight = max(2, 2 * cpus)
         self._pending: list = []  # imap's refs in flight
-        self._submitted: list = []  # submit's (ref, future) pairs not yet seen finished (shutdown cancels them)
+        # submit's (ref, future) pairs not yet seen finished (shutdown cancels them)
+        self._submitted: list = []
 
     def submit(self, fn: Callable[[dict], Any], job: dict) -> cf.Future:
         """A `concurrent.futures.Future` of `fn(job)` run as a Ray task (`WorkerPool.submit`'s interface, for
-        `bavo-collect`); a lost worker is retried as in `imap`, an exception of `fn` is the future's exception."""
+        `bavo-collect`); a lost worker is retried as in `imap`, an exception of `fn` is the future's
+        exception."""
         ref = self._remote.remote(fn, job)
         future = ref.future()
         self._submitted = [(r, f) for r, f in self._submitted if not f.done()] + [(ref, future)]
         return future
 
     def imap(self, fn: Callable[[dict], Any], jobs: Iterable[dict]) -> Iterator[Any]:
-        """Results of `fn` over `jobs` as each finishes (any order); the first failed job's exception is raised
-        (the remaining ones are cancelled)."""
+        """Results of `fn` over `jobs` as each finishes (any order); the first failed job's exception is
+        raised (the remaining ones are cancelled)."""
         ray = self._ray
         jobs = iter(jobs)
         fn_ref = ray.put(fn)

@@ -40,8 +40,12 @@ class JointClass:
 
 
 WAIST = JointClass((-3.14158, 3.14158), kp=43, damping=5.76, forcerange=(-35, 35))
-SHOULDER = JointClass((-1.5, 1.25664), kp=265, damping=20, armature=0.395, frictionloss=2.0, forcerange=(-144, 144))
-ELBOW = JointClass((-1.76278, 1.6057), kp=227, damping=18.49, armature=0.383, frictionloss=1.15, forcerange=(-59, 59))
+SHOULDER = JointClass(
+    (-1.5, 1.25664), kp=265, damping=20, armature=0.395, frictionloss=2.0, forcerange=(-144, 144)
+)
+ELBOW = JointClass(
+    (-1.76278, 1.6057), kp=227, damping=18.49, armature=0.383, frictionloss=1.15, forcerange=(-59, 59)
+)
 FOREARM_ROLL = JointClass((-1.57, 1.57), kp=78, damping=6.78, armature=0.14, forcerange=(-22, 22))
 WRIST_ANGLE = JointClass((-1.8675, 2.23402), kp=37, damping=6.28, armature=0.008, forcerange=(-35, 35))
 WRIST_ROTATE = JointClass((-3.14158, 3.14158), kp=10.4, damping=1.2, forcerange=(-35, 35))
@@ -121,7 +125,8 @@ RIGHT_ARM = slice(7, 13)
 RIGHT_GRIPPER = 13
 CAMERA_ARM = slice(14, 21)
 GRIPPER_INDICES = (LEFT_GRIPPER, RIGHT_GRIPPER)
-# Names of the 21 state / action entries, in order (the datasets' `names`; policies recognise BAVO's action by them).
+# Names of the 21 state / action entries, in order (the datasets' `names`; policies recognise BAVO's action by
+# them).
 ACTION_NAMES = tuple(
     [f"left_{j}" for j in (*MANIPULATOR_JOINTS, "gripper")]
     + [f"right_{j}" for j in (*MANIPULATOR_JOINTS, "gripper")]

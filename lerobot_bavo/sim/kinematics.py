@@ -58,7 +58,9 @@ class ArmKinematics:
         # Per-joint regularisation towards `home` inside the least-squares step. A small weight on
         # forearm_roll keeps the roll-pitch-roll wrist from flipping through its singularity
         # (wrist_angle = 0, where forearm_roll and wrist_rotate are collinear).
-        self.posture_weights = np.zeros(len(ids)) if posture_weights is None else np.asarray(posture_weights, float)
+        self.posture_weights = (
+            np.zeros(len(ids)) if posture_weights is None else np.asarray(posture_weights, float)
+        )
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
 
@@ -73,7 +75,9 @@ class ArmKinematics:
     def fk(self, q) -> tuple[np.ndarray, np.ndarray]:
         """Site position (3,) and rotation matrix (3, 3) in the base frame for joints `q`."""
         self._set(np.asarray(q, dtype=np.float64))
-        return self.data.site_xpos[self.site_id].copy(), self.data.site_xmat[self.site_id].reshape(3, 3).copy()
+        return self.data.site_xpos[self.site_id].copy(), self.data.site_xmat[self.site_id].reshape(
+            3, 3
+        ).copy()
 
     def _solve(self, q, target_pos, target_rot, rot_weight, damping, nullspace_gain, iters, pos_tol, rot_tol,
                max_step, posture_weights):
@@ -112,8 +116,13 @@ class ArmKinematics:
             x = self.data.site_xpos[self.site_id]
             pos_err = float(np.linalg.norm(target_pos - x))
             if target_rot is not None:
-                rot_err = float(np.linalg.norm(rotation_error(np.asarray(target_rot),
-                                                              self.data.site_xmat[self.site_id].reshape(3, 3))))
+                rot_err = float(
+                    np.linalg.norm(
+                        rotation_error(
+                            np.asarray(target_rot), self.data.site_xmat[self.site_id].reshape(3, 3)
+                        )
+                    )
+                )
         return q, pos_err, rot_err
 
     def fk_matrix(self, q) -> np.ndarray:
@@ -161,9 +170,21 @@ MANIPULATOR_POSTURE_WEIGHTS = (0.0, 0.0, 0.0, 0.02, 0.0, 0.0)
 def make_arm_kinematics(model: mujoco.MjModel) -> dict[str, ArmKinematics]:
     """Kinematics for the three arms: keys "left", "right" (gripper centres) and "camera"."""
     return {
-        "left": ArmKinematics(model, [f"left_{j}" for j in C.MANIPULATOR_JOINTS], "left_gripper_center",
-                              C.MANIPULATOR_HOME, posture_weights=MANIPULATOR_POSTURE_WEIGHTS),
-        "right": ArmKinematics(model, [f"right_{j}" for j in C.MANIPULATOR_JOINTS], "right_gripper_center",
-                               C.MANIPULATOR_HOME, posture_weights=MANIPULATOR_POSTURE_WEIGHTS),
-        "camera": ArmKinematics(model, [f"cam_{j}" for j in C.CAMERA_ARM_JOINTS], "cam_camera_center", C.CAMERA_ARM_HOME),
+        "left": ArmKinematics(
+            model,
+            [f"left_{j}" for j in C.MANIPULATOR_JOINTS],
+            "left_gripper_center",
+            C.MANIPULATOR_HOME,
+            posture_weights=MANIPULATOR_POSTURE_WEIGHTS,
+        ),
+        "right": ArmKinematics(
+            model,
+            [f"right_{j}" for j in C.MANIPULATOR_JOINTS],
+            "right_gripper_center",
+            C.MANIPULATOR_HOME,
+            posture_weights=MANIPULATOR_POSTURE_WEIGHTS,
+        ),
+        "camera": ArmKinematics(
+            model, [f"cam_{j}" for j in C.CAMERA_ARM_JOINTS], "cam_camera_center", C.CAMERA_ARM_HOME
+        ),
     }

@@ -97,12 +97,30 @@ def _build_shoulder_chain(spec: mujoco.MjSpec, mount: C.ArmMount):
     Returns the forearm-roll body, whose frame the wrist is attached to.
     """
     p = mount.prefix
-    base = spec.worldbody.add_body(name=f"{p}base", pos=list(mount.pos), quat=list(quat_from_axis_angle((0, 0, 1), mount.yaw)))
-    _robot_geom(base, f"{p}base_geom", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.06, 0.035, 0], pos=[0, 0, 0.035], mass=1.0, rgba=_JOINT_RGBA)
+    base = spec.worldbody.add_body(
+        name=f"{p}base", pos=list(mount.pos), quat=list(quat_from_axis_angle((0, 0, 1), mount.yaw))
+    )
+    _robot_geom(
+        base,
+        f"{p}base_geom",
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[0.06, 0.035, 0],
+        pos=[0, 0, 0.035],
+        mass=1.0,
+        rgba=_JOINT_RGBA,
+    )
 
     waist = base.add_body(name=f"{p}waist_link", pos=list(C.WAIST_OFFSET), gravcomp=1.0)
     _add_hinge(waist, f"{p}waist", (0, 0, 1), C.WAIST)
-    _robot_geom(waist, f"{p}waist_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.035, 0.045, 0.025], pos=[0, 0, 0.02], mass=0.4, rgba=_JOINT_RGBA)
+    _robot_geom(
+        waist,
+        f"{p}waist_geom",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.035, 0.045, 0.025],
+        pos=[0, 0, 0.02],
+        mass=0.4,
+        rgba=_JOINT_RGBA,
+    )
 
     shoulder = waist.add_body(name=f"{p}upper_arm_link", pos=list(C.SHOULDER_OFFSET), gravcomp=1.0)
     _add_hinge(shoulder, f"{p}shoulder", (0, 1, 0), C.SHOULDER)
@@ -135,8 +153,17 @@ def add_manipulator(spec: mujoco.MjSpec, mount: C.ArmMount) -> None:
     _add_hinge(gripper, f"{p}wrist_rotate", (1, 0, 0), C.WRIST_ROTATE)
     cx = C.GRIPPER_CENTER_OFFSET[0]
     palm_x = cx - FINGER_PAD_HALF[0] - 0.03
-    _robot_geom(gripper, f"{p}palm_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.05, 0.018], pos=[palm_x, 0, 0], mass=0.2)
-    gripper.add_site(name=f"{p}gripper_center", pos=[cx, 0, 0], size=[0.006, 0, 0], group=C.GROUP_HIDDEN, rgba=[1, 0, 0, 1])
+    _robot_geom(
+        gripper,
+        f"{p}palm_geom",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.02, 0.05, 0.018],
+        pos=[palm_x, 0, 0],
+        mass=0.2,
+    )
+    gripper.add_site(
+        name=f"{p}gripper_center", pos=[cx, 0, 0], size=[0.006, 0, 0], group=C.GROUP_HIDDEN, rgba=[1, 0, 0, 1]
+    )
 
     for side, sign in (("a", 1.0), ("b", -1.0)):
         finger = gripper.add_body(name=f"{p}finger_{side}", pos=[cx, 0, 0], gravcomp=1.0)
@@ -228,7 +255,9 @@ def add_camera_arm(spec: mujoco.MjSpec, fovy: float = C.ACTIVE_CAMERA_FOVY) -> N
                 size=[0.015, 0.09, 0.015], pos=[cam_pos[0] - 0.012, 0, cam_pos[2]],
                 quat=list(quat_from_axis_angle((0, 1, 0), C.CAM_MOUNT_PITCH)), mass=0.1)
     w3.add_camera(name=C.ACTIVE_CAMERA, pos=cam_pos, quat=list(cam_quat), fovy=fovy)
-    w3.add_site(name=f"{p}camera_center", pos=cam_pos, quat=list(cam_quat), size=[0.005, 0, 0], group=C.GROUP_HIDDEN)
+    w3.add_site(
+        name=f"{p}camera_center", pos=cam_pos, quat=list(cam_quat), size=[0.005, 0, 0], group=C.GROUP_HIDDEN
+    )
 
     for joint, cls in zip(C.CAMERA_ARM_JOINTS, C.CAMERA_ARM_CLASSES):
         _add_position_actuator(spec, f"{p}{joint}", f"{p}{joint}", cls.kp, 0.0, cls.range, cls.forcerange)

@@ -43,13 +43,34 @@ def build_base_spec(fovy: float = C.ACTIVE_CAMERA_FOVY) -> mujoco.MjSpec:
     spec.stat.extent = 1.0
     spec.stat.center = [0, 0, 0.2]
 
-    spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
-                     rgb1=[0.75, 0.8, 0.85], rgb2=[0.35, 0.4, 0.45], width=64, height=64)
+    spec.add_texture(
+        name="sky",
+        type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+        rgb1=[0.75, 0.8, 0.85],
+        rgb2=[0.35, 0.4, 0.45],
+        width=64,
+        height=64,
+    )
     world = spec.worldbody
-    world.add_light(name="key", pos=[0, -0.3, 2.5], dir=[0, 0.1, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-                    castshadow=False, diffuse=[0.7, 0.7, 0.7], specular=[0.1, 0.1, 0.1])
-    world.add_light(name="fill", pos=[0.8, 1.2, 1.5], dir=[-0.4, -0.6, -0.7], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-                    castshadow=False, diffuse=[0.35, 0.35, 0.35], specular=[0, 0, 0])
+    world.add_light(
+        name="key",
+        pos=[0, -0.3, 2.5],
+        dir=[0, 0.1, -1],
+        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+        castshadow=False,
+        diffuse=[0.7, 0.7, 0.7],
+        specular=[0.1, 0.1, 0.1],
+    )
+    world.add_light(
+        name="fill",
+        pos=[0.8, 1.2, 1.5],
+        dir=[-0.4, -0.6, -0.7],
+        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+        castshadow=False,
+        diffuse=[0.35, 0.35, 0.35],
+        specular=[0, 0, 0],
+    )
     spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
     spec.visual.headlight.diffuse = [0.2, 0.2, 0.2]
 

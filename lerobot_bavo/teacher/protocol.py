@@ -79,7 +79,9 @@ class EpisodeClip:
         if frames.ndim != 1 or frames.size == 0:
             raise ValueError(f"frames must be a non-empty (T,) index array, got shape {frames.shape}")
         if frames.min() < 0 or frames.max() >= self.episode_length:
-            raise ValueError(f"clip frames must lie in [0, {self.episode_length}), got {frames.min()}..{frames.max()}")
+            raise ValueError(
+                f"clip frames must lie in [0, {self.episode_length}), got {frames.min()}..{frames.max()}"
+            )
         object.__setattr__(self, "frames", frames)
 
     # -- sizes
@@ -133,7 +135,9 @@ class EpisodeClip:
         """Episode frame of each clip index (vectorised), with a range check."""
         idx = np.asarray(clip_indices, dtype=np.int64)
         if idx.size and (idx.min() < 0 or idx.max() >= self.length):
-            raise ValueError(f"clip frame indices must lie in [0, {self.length}), got {idx.min()}..{idx.max()}")
+            raise ValueError(
+                f"clip frame indices must lie in [0, {self.length}), got {idx.min()}..{idx.max()}"
+            )
         return self.frames[idx]
 
 
@@ -147,7 +151,9 @@ def clip_frames(anchor: int, episode_length: int, clip_length: int = CLIP_LENGTH
     return np.clip(anchor - anchor_index + np.arange(clip_length), 0, episode_length - 1).astype(np.int64)
 
 
-def make_clip(episode, anchor: int, clip_length: int = CLIP_LENGTH, anchor_index: int = ANCHOR_INDEX) -> EpisodeClip:
+def make_clip(
+    episode, anchor: int, clip_length: int = CLIP_LENGTH, anchor_index: int = ANCHOR_INDEX
+) -> EpisodeClip:
     """The clip of `episode` around `anchor` (paper, App. B: 32 frames, anchor at index 16).
 
     `episode` is any object with the attributes `rgb`, `camera_pose`, `K` and optionally `depth`,

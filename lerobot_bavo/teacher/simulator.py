@@ -62,7 +62,8 @@ class SimulatorTeacher:
     def answer_frames(self, episode: EpisodeClip, u, v, f_src, f_tgt, f_cam) -> np.ndarray:
         """`answer` for queries given by *episode* frame indices (Q,) (not clip indices) and pixel coordinates
         u, v (Q,); only `episode`'s per-episode arrays and K are used. Each row is answered independently, so
-        `teacher_targets` answers a whole episode's queries in one call with the same numbers as frame by frame.
+        `teacher_targets` answers a whole episode's queries in one call with the same numbers as frame by
+        frame.
         """
         _require_privileged_state(episode)
         out = np.zeros((len(u), self.feature_dim), dtype=np.float32)

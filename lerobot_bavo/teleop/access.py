@@ -13,8 +13,8 @@ must:
   own http origin, as named in `Host` (the loopback names count as one). A page elsewhere is
   refused. A request without `Origin` is not from a page on another site (browsers send one);
 - except for the page's static script, carry the run's random token (`?token=...`, printed in
-  the URL at start; the page passes it on to the websocket), compared in constant time. The token stops what the header checks cannot:
-  another local user or program that knows the port.
+  the URL at start; the page passes it on to the websocket), compared in constant time. The token stops what
+  the header checks cannot: another local user or program that knows the port.
 
 `AccessPolicy.refusal` is pure (headers in, reason out) so each rule is tested on its own; the
 server turns a reason into HTTP 403.
@@ -111,7 +111,9 @@ class AccessPolicy:
     def _names_this_server(self, name: str, port: int | None) -> bool:
         return (port or 80) == self.port and (name in self.names or (self.any_ip and _is_ip(name)))
 
-    def refusal(self, host: str | None, origin: str | None, token: str | None, need_token: bool) -> str | None:
+    def refusal(
+        self, host: str | None, origin: str | None, token: str | None, need_token: bool
+    ) -> str | None:
         """Why the request must be refused, or None when it may go on.
 
         Args:
@@ -148,5 +150,7 @@ class AccessPolicy:
             o_name, o_port = split_host(parts.netloc)
         except ValueError:
             return refused
-        same = (o_name, o_port or 80) == (h_name, h_port or 80) or (is_loopback(o_name) and is_loopback(h_name))
+        same = (o_name, o_port or 80) == (h_name, h_port or 80) or (
+            is_loopback(o_name) and is_loopback(h_name)
+        )
         return None if same and self._names_this_server(o_name, o_port) else refused

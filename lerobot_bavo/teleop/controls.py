@@ -64,7 +64,7 @@ Controls (one arm at a time; the base frame as seen from the operator side / thi
   Space          toggle the selected gripper (open / closed)
   L              camera arm: toggle look-at mode (keeps looking at the workspace point under the image centre)
   Shift (held)   fine motion (x0.3)
-  N  start an episode      Enter  save it      Backspace  discard it      Z  discard and re-record the same seed
+  N  start an episode     Enter  save it     Backspace  discard it     Z  discard and re-record the same seed
   X  stop the episode here (then save or discard)
 Gamepad (browser Gamepad API, standard mapping): left stick x/y, right stick y = z, right stick x = yaw,
   A = gripper, B (held) = fine, Y = look-at mode, LB / RB = previous / next arm.
@@ -100,8 +100,14 @@ class TickInput:
         pad = d.get("pad")
         pad = None if pad is None else tuple(float(v) for v in list(pad)[:4])
         xr = d.get("xr")
-        return cls(keys=keys, taps=taps, pad=pad, xr=xr if isinstance(xr, dict) else None, seq=int(d.get("seq", 0)),
-                   stop=bool(d.get("stop", False)))
+        return cls(
+            keys=keys,
+            taps=taps,
+            pad=pad,
+            xr=xr if isinstance(xr, dict) else None,
+            seq=int(d.get("seq", 0)),
+            stop=bool(d.get("stop", False)),
+        )
 
 
 def motion_command(inp: TickInput) -> np.ndarray:
@@ -257,7 +263,8 @@ class TeleopController:
             self.active = "camera"
 
     def point_under_image_centre(self) -> np.ndarray:
-        """First surface hit by the ray through the active image's centre (the table plane, or 0.5 m ahead, else)."""
+        """First surface hit by the ray through the active image's centre (the table plane, or 0.5 m ahead,
+        else)."""
         env = self.env
         cam_id = env.model.camera(C.ACTIVE_CAMERA).id
         origin = env.data.cam_xpos[cam_id].copy()
@@ -317,7 +324,9 @@ class TeleopController:
     def _xr(self, xr: dict) -> None:
         """Headset -> camera arm, controllers -> left / right arms, each relative to its pose at the first
         XR tick (a clutch: the robot keeps its pose when the session starts)."""
-        poses = {dev: xr_pose_to_base(xr[dev]) for dev in ("head", "left", "right") if xr.get(dev) is not None}
+        poses = {
+            dev: xr_pose_to_base(xr[dev]) for dev in ("head", "left", "right") if xr.get(dev) is not None
+        }
         if self.xr_reference is None:
             self.xr_reference = {
                 dev: (poses[dev], self.arms[arm].pos.copy(), self.arms[arm].rot.copy())

@@ -40,7 +40,8 @@ COMMANDS = ("start", "stop", "save", "discard", "rerecord")
 XR_POSES = ("head", "left", "right")
 XR_TRIGGERS = ("left_trigger", "right_trigger")
 KNOWN_KEYS = frozenset(
-    [*MOTION_KEYS, "shift", *ARM_KEYS, GRIPPER_KEY, LOOK_AT_KEY] + [f"pad{i}" for i in range(MAX_PAD_BUTTONS)])
+    [*MOTION_KEYS, "shift", *ARM_KEYS, GRIPPER_KEY, LOOK_AT_KEY] + [f"pad{i}" for i in range(MAX_PAD_BUTTONS)]
+)
 INPUT_FIELDS = frozenset({"type", "seq", "keys", "taps", "pad", "xr"})
 
 
@@ -157,7 +158,8 @@ def _pad(value) -> tuple[float, ...] | None:
 
 
 def _pose(name: str, value) -> list[float] | None:
-    """[x, y, z, qx, qy, qz, qw] with a finite position in range and a quaternion near unit norm, normalised."""
+    """[x, y, z, qx, qy, qz, qw] with a finite position in range and a quaternion near unit norm,
+    normalised."""
     if value is None:
         return None
     if not isinstance(value, list) or len(value) != 7:

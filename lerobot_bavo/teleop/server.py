@@ -107,10 +107,16 @@ class TeleopServer:
 
         if self.policy is None:
             raise web.HTTPServiceUnavailable(text="bavo-teleop: starting\n")
-        reason = self.policy.refusal(request.headers.get("Host"), request.headers.get("Origin"),
-                                     request.query.get("token"), need_token=not request.path.startswith(OPEN_PREFIX))
+        reason = self.policy.refusal(
+            request.headers.get("Host"),
+            request.headers.get("Origin"),
+            request.query.get("token"),
+            need_token=not request.path.startswith(OPEN_PREFIX),
+        )
         if reason is not None:
-            logger.warning("refused %s %s from %s: %s", request.method, request.path[:100], request.remote, reason)
+            logger.warning(
+                "refused %s %s from %s: %s", request.method, request.path[:100], request.remote, reason
+            )
             raise web.HTTPForbidden(text=f"bavo-teleop: refused: {reason}\n")
         return await handler(request)
 
@@ -254,7 +260,9 @@ class TeleopServer:
             url = await self.start(host, port)
             wildcard = host.strip("[]") in WILDCARD_ADDRESSES
             where = f" (listening on {host}: from another machine, use its address)" if wildcard else ""
-            print(f"bavo-teleop: serving {url}{where} (dataset {self.session.root}); Ctrl+C stops", flush=True)
+            print(
+                f"bavo-teleop: serving {url}{where} (dataset {self.session.root}); Ctrl+C stops", flush=True
+            )
             stop = asyncio.Event()
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self.loop.add_signal_handler(sig, stop.set)
@@ -269,28 +277,44 @@ def build_parser() -> argparse.ArgumentParser:
     from lerobot_bavo.envs.conditions import CONDITIONS
 
     p = argparse.ArgumentParser(
-        prog="bavo-teleop", formatter_class=argparse.RawDescriptionHelpFormatter,
+        prog="bavo-teleop",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
         description=__doc__.split("\n\n")[0] + "\n\n" + "\n\n".join(__doc__.split("\n\n")[1:]),
-        epilog=CONTROLS_HELP + "\n\nModes: the keyboard / gamepad drive one arm at a time (position and yaw, plus the "
-        "gripper; the camera arm also pitch, or look-at mode); WebXR drives all three at once. Episodes: N starts one "
-        "(seeds --seed, --seed + 1, ...), it ends at success, at the step limit or with X; Enter saves, Backspace "
-        "discards (nothing is written), Z re-records the same seed.")
+        epilog=CONTROLS_HELP
+        + "\n\nModes: the keyboard / gamepad drive one arm at a time (position and yaw, plus the "
+        "gripper; the camera arm also pitch, or look-at mode); WebXR drives all three at once. Episodes: N "
+        "starts one "
+        "(seeds --seed, --seed + 1, ...), it ends at success, at the step limit or with X; Enter saves, "
+        "Backspace "
+        "discards (nothing is written), Z re-records the same seed.",
+    )
     p.add_argument("--task", help="benchmark task, e.g. cube_handoff")
     p.add_argument("--condition", default="stage", choices=tuple(CONDITIONS), help="visibility condition")
     p.add_argument("--repo-id", help="<user>/<name> of the dataset, e.g. me/bavo_human_cube_handoff")
-    p.add_argument("--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default: this machine only; 0.0.0.0: all interfaces, still with "
-                        "the token and the Host / Origin checks)")
+    p.add_argument(
+        "--root", type=Path, default=None, help="local dataset folder (default $HF_LEROBOT_HOME/<repo-id>)"
+    )
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default: this machine only; 0.0.0.0: all interfaces, still with "
+        "the token and the Host / Origin checks)",
+    )
     p.add_argument("--port", type=int, default=8765, help="port (0: any free port)")
-    p.add_argument("--seed", type=int, default=100_000, help="seed of the first episode (clear of eval seeds)")
-    p.add_argument("--episode-length", type=int, default=None, help="control-step limit (default: the task's)")
+    p.add_argument(
+        "--seed", type=int, default=100_000, help="seed of the first episode (clear of eval seeds)"
+    )
+    p.add_argument(
+        "--episode-length", type=int, default=None, help="control-step limit (default: the task's)"
+    )
     default = ObservationSettings()  # the observation defaults, in one place
     p.add_argument("--image-height", type=int, default=default.image_height)
     p.add_argument("--image-width", type=int, default=default.image_width)
     p.add_argument("--n-points", type=int, default=default.n_points)
     p.add_argument("--point-frame", default="base", choices=("base", "camera"))
-    p.add_argument("--third-person-height", type=int, default=240, help="height of the third-person view (pixels)")
+    p.add_argument(
+        "--third-person-height", type=int, default=240, help="height of the third-person view (pixels)"
+    )
     p.add_argument("--replay", type=Path, default=None, metavar="INPUT_LOG",
                    help="re-drive a recorded input log without a browser (saved into --root when given)")
     return p
@@ -313,16 +337,31 @@ def _replay(args) -> int:
     except (ValueError, OSError) as e:
         print(f"bavo-teleop: error: {e}", file=sys.stderr)
         return 2
-    summary = {"log": str(args.replay), "task": header["task"], "condition": header["condition"],
-               "seed": header["seed"], "length": record.length, "success": record.success,
-               "progress": record.final_progress, "recoveries": len(agent.recoveries), "digest": record_digest(record)}
+    summary = {
+        "log": str(args.replay),
+        "task": header["task"],
+        "condition": header["condition"],
+        "seed": header["seed"],
+        "length": record.length,
+        "success": record.success,
+        "progress": record.final_progress,
+        "recoveries": len(agent.recoveries),
+        "digest": record_digest(record),
+    }
     if args.root is not None or args.repo_id is not None:
         if args.repo_id is None:
             print("bavo-teleop: error: --replay with --root also needs --repo-id", file=sys.stderr)
             return 2
-        ds = HumanDataset(args.repo_id, args.root, header["task"], header["condition"],
-                          ObservationSettings(**header["settings"]), header["episode_length"], int(header["seed"]),
-                          command="bavo-teleop " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+        ds = HumanDataset(
+            args.repo_id,
+            args.root,
+            header["task"],
+            header["condition"],
+            ObservationSettings(**header["settings"]),
+            header["episode_length"],
+            int(header["seed"]),
+            command="bavo-teleop " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        )
         try:
             summary["saved"] = ds.save(record, agent.inputs)
         finally:

@@ -103,7 +103,8 @@ class HumanAgent:
             action = self.controller.step(inp)
         except Exception as e:  # noqa: BLE001 - any failure here must not end the episode (see the class doc)
             tick = len(self.inputs) - 1
-            first = not self.failed_ticks or self.failed_ticks[-1] != tick - 1  # report a run of failures once
+            # report a run of failures once
+            first = not self.failed_ticks or self.failed_ticks[-1] != tick - 1
             self.failed_ticks.append(tick)
             action = before
             if first:
@@ -129,9 +130,19 @@ class HumanAgent:
 
 
 # ====================================================================== input logs
-def log_header(task: str, condition: str, seed: int, settings: ObservationSettings, episode_length: int | None) -> dict:
-    return {"format": LOG_FORMAT, "version": LOG_VERSION, "task": task, "condition": condition, "seed": int(seed),
-            "settings": settings.to_dict(), "episode_length": episode_length, "fps": S.FPS}
+def log_header(
+    task: str, condition: str, seed: int, settings: ObservationSettings, episode_length: int | None
+) -> dict:
+    return {
+        "format": LOG_FORMAT,
+        "version": LOG_VERSION,
+        "task": task,
+        "condition": condition,
+        "seed": int(seed),
+        "settings": settings.to_dict(),
+        "episode_length": episode_length,
+        "fps": S.FPS,
+    }
 
 
 def write_log(path: Path, header: dict, inputs: list[dict]) -> None:
@@ -148,9 +159,13 @@ def write_log(path: Path, header: dict, inputs: list[dict]) -> None:
 def read_log(path: str | Path) -> tuple[dict, list[TickInput]]:
     lines = [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
     if not lines or lines[0].get("format") != LOG_FORMAT:
-        raise ValueError(f"{path} is not a bavo-teleop input log (its first line must be a {LOG_FORMAT!r} header)")
+        raise ValueError(
+            f"{path} is not a bavo-teleop input log (its first line must be a {LOG_FORMAT!r} header)"
+        )
     if lines[0].get("version") != LOG_VERSION:
-        raise ValueError(f"{path}: input log version {lines[0].get('version')}, this bavo-teleop reads {LOG_VERSION}")
+        raise ValueError(
+            f"{path}: input log version {lines[0].get('version')}, this bavo-teleop reads {LOG_VERSION}"
+        )
     ticks = [TickInput.from_json(d) for d in lines[1:]]
     if [d.get("tick") for d in lines[1:]] != list(range(len(ticks))):
         raise ValueError(f"{path}: ticks are not numbered 0..{len(ticks) - 1} (truncated or edited log)")
@@ -175,7 +190,9 @@ def replay_log(path: str | Path, recorder=None):
         try:
             return next(it)
         except StopIteration:
-            raise ValueError(f"{path}: the log ends after {len(ticks)} ticks but the episode goes on") from None
+            raise ValueError(
+                f"{path}: the log ends after {len(ticks)} ticks but the episode goes on"
+            ) from None
 
     agent = HumanAgent(recorder.env, next_input)
     try:
@@ -258,15 +275,41 @@ class HumanDataset:
     (`staging.stage_episode`) and commits it in its own LeRobot writer session (`DatasetSession.commit`).
     """
 
-    def __init__(self, repo_id: str, root: Path | None, task: str, condition: str, settings: ObservationSettings,
-                 episode_length: int | None, seed: int, command: str | None = None):
+    def __init__(
+        self,
+        repo_id: str,
+        root: Path | None,
+        task: str,
+        condition: str,
+        settings: ObservationSettings,
+        episode_length: int | None,
+        seed: int,
+        command: str | None = None,
+    ):
         from lerobot_bavo.datasets.collect_config import CollectConfig
         from lerobot_bavo.datasets.session import DatasetSession
 
-        self.task, self.condition, self.settings, self.episode_length = task, condition, settings, episode_length
-        ccfg = CollectConfig(task=task, condition=condition, episodes=1, repo_id=repo_id, root=root, workers=0,
-                             seed=seed, commit_every=1, settings=settings, episode_length=episode_length,
-                             keep_failures=True, progress=False, command=command)
+        self.task, self.condition, self.settings, self.episode_length = (
+            task,
+            condition,
+            settings,
+            episode_length,
+        )
+        ccfg = CollectConfig(
+            task=task,
+            condition=condition,
+            episodes=1,
+            repo_id=repo_id,
+            root=root,
+            workers=0,
+            seed=seed,
+            commit_every=1,
+            settings=settings,
+            episode_length=episode_length,
+            keep_failures=True,
+            progress=False,
+            command=command,
+        )
         self.session = DatasetSession(ccfg)
         self.session.settings["source"] = "human"  # recorded; with keep_failures it keeps expert runs out
         self.root = self.session.root
@@ -317,7 +360,8 @@ class HumanDataset:
         return entry
 
     def close(self) -> None:
-        """Per-channel point-cloud statistics, the collection record and the dataset card; releases the lock."""
+        """Per-channel point-cloud statistics, the collection record and the dataset card; releases the
+        lock."""
         if self._lock is None:
             return
         col = self.session
@@ -420,7 +464,8 @@ class TeleopSession:
         self.publish({"type": "error", "error": text}, None)
 
     def close(self, timeout: float = 600.0) -> None:
-        """Stop the loop: a running episode is dropped, a save in progress completes; then finish the dataset."""
+        """Stop the loop: a running episode is dropped, a save in progress completes; then finish the
+        dataset."""
         self.commands.put("quit")
         if self._thread is not None:
             self._thread.join(timeout)
@@ -445,8 +490,16 @@ class TeleopSession:
         from lerobot_bavo.sim.rendering import SceneRenderer
 
         cfg = self.cfg
-        self.dataset = HumanDataset(cfg.repo_id, cfg.root, cfg.task, cfg.condition, cfg.settings, cfg.episode_length,
-                                    cfg.seed, cfg.command)
+        self.dataset = HumanDataset(
+            cfg.repo_id,
+            cfg.root,
+            cfg.task,
+            cfg.condition,
+            cfg.settings,
+            cfg.episode_length,
+            cfg.seed,
+            cfg.command,
+        )
         self.root = self.dataset.root
         self.next_seed = self.dataset.next_seed
         self.recorder = EpisodeRecorder(cfg.task, cfg.condition, cfg.settings, cfg.episode_length)
@@ -467,8 +520,9 @@ class TeleopSession:
                 logger.exception("command %r failed", cmd)
                 kept = self.pending is not None
                 self.state = "ended" if kept else "idle"
-                self.message = (f"{cmd} failed ({type(e).__name__}: {e})"
-                                + ("; the episode is kept: Enter saves it, Backspace discards it" if kept else ""))
+                self.message = f"{cmd} failed ({type(e).__name__}: {e})" + (
+                    "; the episode is kept: Enter saves it, Backspace discards it" if kept else ""
+                )
                 self.report_error(self.message)
                 self._status()
 
@@ -500,7 +554,9 @@ class TeleopSession:
         self.state, self.message = "running", f"episode seed {seed}"
         self._tick_deadline = time.perf_counter()
         self._tick_times = []
-        agent = HumanAgent(self.recorder.env, self._next_input, self._on_tick_frame, on_error=self.report_error)
+        agent = HumanAgent(
+            self.recorder.env, self._next_input, self._on_tick_frame, on_error=self.report_error
+        )
         self._agent = agent
         self._frame_failed = False
         t0 = time.time()
@@ -522,7 +578,9 @@ class TeleopSession:
         self._last_seed_done = False
         end = "success" if record.success else ("stopped" if agent.stop_requested else "step limit")
         self.state = "ended"
-        self.message = f"episode ended ({end}, {record.length} steps): Enter saves, Backspace discards, Z re-records"
+        self.message = (
+            f"episode ended ({end}, {record.length} steps): Enter saves, Backspace discards, Z re-records"
+        )
         self._on_frame(None, None, agent, final=True)
         if self._after_end_save:
             self._after_end_save = False
@@ -605,7 +663,10 @@ class TeleopSession:
         self.pending = None
         self._last_seed_done = True
         n = len(self.dataset)
-        self.state, self.message = "idle", f"saved as episode {n - 1} ({n} in the dataset); N starts the next seed"
+        self.state, self.message = (
+            "idle",
+            f"saved as episode {n - 1} ({n} in the dataset); N starts the next seed",
+        )
         self._show_reset(self.next_seed + 1)
 
     def _finish(self) -> None:
@@ -664,7 +725,10 @@ class TeleopSession:
         header["overruns"] = int(self.overruns)
         header["max_steps"] = int(env.max_episode_steps)
         third = self._third.render_rgb(env.data, C.THIRD_PERSON_CAMERA)
-        self.publish(header, (_jpeg(obs["pixels"]["active"], self.cfg.jpeg_quality), _jpeg(third, self.cfg.jpeg_quality)))
+        self.publish(
+            header,
+            (_jpeg(obs["pixels"]["active"], self.cfg.jpeg_quality), _jpeg(third, self.cfg.jpeg_quality)),
+        )
 
 
 def _jpeg(rgb: np.ndarray, quality: int) -> bytes:

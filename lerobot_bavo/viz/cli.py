@@ -45,24 +45,39 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--repo-id", default=None,
                      help="Hub dataset repo id; its files are fetched into --root (default: LeRobot's cache)")
     src.add_argument("--episode", type=int, default=0, help="episode index (default 0)")
-    src.add_argument("--rrd", type=Path, default=None, help="an .rrd file (e.g. written by bavo-eval --rerun)")
+    src.add_argument(
+        "--rrd", type=Path, default=None, help="an .rrd file (e.g. written by bavo-eval --rerun)"
+    )
     mode = p.add_argument_group("mode (default --save)").add_mutually_exclusive_group()
     mode.add_argument("--save", type=Path, default=None, metavar="FILE.rrd",
                       help="write a rerun recording (default mode; default file outputs/view/<name>.rrd)")
     mode.add_argument("--web", action="store_true", help="serve rerun's web viewer until Ctrl-C")
     mode.add_argument("--spawn", action="store_true", help="open rerun's native viewer")
     opt = p.add_argument_group("options")
-    opt.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090; 0: a free one)")
+    opt.add_argument(
+        "--web-port", type=int, default=9090, help="web viewer port (default 9090; 0: a free one)"
+    )
     opt.add_argument("--grpc-port", type=int, default=9876,
                      help="port of the data server the web viewer reads (default 9876; 0: a free one)")
-    opt.add_argument("--bind", default=DEFAULT_BIND, metavar="ADDR",
-                     help=f"address --web listens on (default {DEFAULT_BIND}: this machine only; 0.0.0.0 or :: "
-                          "opens it to the network)")
+    opt.add_argument(
+        "--bind",
+        default=DEFAULT_BIND,
+        metavar="ADDR",
+        help=f"address --web listens on (default {DEFAULT_BIND}: this machine only; 0.0.0.0 or :: "
+        "opens it to the network)",
+    )
     opt.add_argument("--teacher", action="store_true",
                      help="also show the teacher's query points at t and their answers at t + 15 (arrows)")
-    opt.add_argument("--relation-point", type=int, default=None, metavar="I",
-                     help="also show the teacher's relation change dR of point I to every point as a heat map")
-    opt.add_argument("--no-images", action="store_true", help="skip the RGB frames (smaller, faster recordings)")
+    opt.add_argument(
+        "--relation-point",
+        type=int,
+        default=None,
+        metavar="I",
+        help="also show the teacher's relation change dR of point I to every point as a heat map",
+    )
+    opt.add_argument(
+        "--no-images", action="store_true", help="skip the RGB frames (smaller, faster recordings)"
+    )
     opt.add_argument("--last-frame", type=int, default=None, metavar="K",
                      help="show frames 0..K only (the viewer then opens at frame K)")
     return p
@@ -121,15 +136,19 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     kw = dict(teacher=args.teacher, relation_point=args.relation_point, images=not args.no_images)
     if ep is not None and args.relation_point is not None and not 0 <= args.relation_point < ep.n_points:
-        parser.error(f"--relation-point {args.relation_point} is out of range: the clouds have {ep.n_points} points")
+        parser.error(
+            f"--relation-point {args.relation_point} is out of range: the clouds have {ep.n_points} points"
+        )
 
     if not args.web and not args.spawn:
         from lerobot_bavo.viz.log import write_rrd
 
         path = args.save or Path("outputs") / "view" / f"{name}.rrd"
         write_rrd(ep, path, **kw)
-        print(f"bavo-view: wrote {path} ({ep.length} frames, {path.stat().st_size / 1e6:.1f} MB) in "
-              f"{time.perf_counter() - t0:.2f} s; open it with `rerun {path}` or `bavo-view --rrd {path} --web`")
+        print(
+            f"bavo-view: wrote {path} ({ep.length} frames, {path.stat().st_size / 1e6:.1f} MB) in "
+            f"{time.perf_counter() - t0:.2f} s; open it with `rerun {path}` or `bavo-view --rrd {path} --web`"
+        )
         return 0
     if args.web:
         return _web(args, ep, name, kw)
@@ -138,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _web(args, ep, name: str, kw) -> int:
     """Serve the recording (the --rrd file, or the episode written to a temporary .rrd) with rerun's CLI on
-    --bind (`viz.serve`: why not the SDK's serve_grpc) until Ctrl-C or SIGTERM; the server never outlives us."""
+    --bind (`viz.serve`: why not the SDK's serve_grpc) until Ctrl-C or SIGTERM; the server never outlives
+    us."""
     import signal
     import tempfile
 

@@ -11,10 +11,14 @@ Entity paths (the world is the robot base frame B: metres, +z up):
 | `world/camera/image/rgb` | Image (JPEG) | every frame, where the source has RGB |
 | `world/camera/image/depth` | DepthImage (m) | every frame, where the source has depth |
 | `world/camera_path` | LineStrips3D: camera positions of frames 0..k | every frame |
-| `world/occluder` | Boxes3D: the panel (14 x 14 x 0.6 cm) | while an occlusion event is active; cleared otherwise |
-| `world/teacher/queries` | Arrows3D: teacher query points at t -> their answer at t + 15 | optional (`--teacher`) |
-| `world/teacher/relation` | Points3D coloured by the relation change dR^T of the chosen point | optional (`--relation-point`) |
-| `world/policy/action_chunk/<arm>` | LineStrips3D: grippers along the predicted chunk (forward kinematics of the predicted joint targets) | eval, frames where a chunk was predicted |
+| `world/occluder` | Boxes3D: the panel (14 x 14 x 0.6 cm) | while an occlusion event is active; cleared
+otherwise |
+| `world/teacher/queries` | Arrows3D: teacher query points at t -> their answer at t + 15 | optional
+(`--teacher`) |
+| `world/teacher/relation` | Points3D coloured by the relation change dR^T of the chosen point | optional
+(`--relation-point`) |
+| `world/policy/action_chunk/<arm>` | LineStrips3D: grippers along the predicted chunk (forward kinematics of
+the predicted joint targets) | eval, frames where a chunk was predicted |
 | `plots/visibility` | Scalars: V of the current target | every frame (occluded conditions) |
 | `plots/progress` | Scalars: milestone depth 0..5 | every frame |
 | `plots/milestones/m1..m5` | Scalars: 0 / 1 | every frame |
@@ -76,8 +80,12 @@ def static_entities(ep: EpisodeData) -> dict[str, object]:
         PINHOLE: rr.Pinhole(image_from_camera=np.asarray(ep.K, dtype=np.float32), resolution=[W, H],
                             camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.12),
     }
-    names = {VISIBILITY: "visibility V", PROGRESS: "progress (milestone depth)", RECOVERING: "recovering the view",
-             **{f"{MILESTONES}/m{i}": f"M{i}" for i in range(1, 6)}}
+    names = {
+        VISIBILITY: "visibility V",
+        PROGRESS: "progress (milestone depth)",
+        RECOVERING: "recovering the view",
+        **{f"{MILESTONES}/m{i}": f"M{i}" for i in range(1, 6)},
+    }
     for path, name in names.items():
         out[path] = rr.SeriesLines(names=name)
     if ep.occlusion_event is not None:
@@ -132,10 +140,14 @@ def occluder_entity(ep: EpisodeData, k: int):
         if ep.occlusion_target is not None and ep.occlusion_target[k]:
             label += f", hides {ep.occlusion_target[k]}"
         label += ")"
-    return rr.Boxes3D(half_sizes=[OCCLUDER_HALF_EXTENTS], centers=[pose[:3]],
-                      quaternions=[rr.Quaternion(xyzw=[x, y, z, w])],
-                      colors=OCCLUDER_COLOR if recovering or ep.occlusion_active is None else OCCLUDER_IDLE_COLOR,
-                      fill_mode="solid", labels=label)
+    return rr.Boxes3D(
+        half_sizes=[OCCLUDER_HALF_EXTENTS],
+        centers=[pose[:3]],
+        quaternions=[rr.Quaternion(xyzw=[x, y, z, w])],
+        colors=OCCLUDER_COLOR if recovering or ep.occlusion_active is None else OCCLUDER_IDLE_COLOR,
+        fill_mode="solid",
+        labels=label,
+    )
 
 
 def teacher_query_entity(ep: EpisodeData, k: int):
@@ -166,8 +178,10 @@ def relation_entity(ep: EpisodeData, k: int, point: int):
 def chunk_path_entities(paths: dict[str, np.ndarray]) -> dict[str, object]:
     import rerun as rr
 
-    return {f"{CHUNK_PATH}/{arm}": rr.LineStrips3D([p], colors=ARM_COLORS.get(arm, (255, 255, 255)), radii=0.003)
-            for arm, p in paths.items()}
+    return {
+        f"{CHUNK_PATH}/{arm}": rr.LineStrips3D([p], colors=ARM_COLORS.get(arm, (255, 255, 255)), radii=0.003)
+        for arm, p in paths.items()
+    }
 
 
 def frame_entities(ep: EpisodeData, k: int, *, teacher: bool = False, relation_point: int | None = None,
@@ -197,8 +211,10 @@ def frame_entities(ep: EpisodeData, k: int, *, teacher: bool = False, relation_p
     if ep.event_start is not None and ep.event_start[k]:
         target = ep.occlusion_target[k] if ep.occlusion_target is not None else None
         index = int(ep.occlusion_event[k]) if ep.occlusion_event is not None else -1
-        out[EVENTS] = rr.TextLog(f"occlusion event {index} starts" + (f": the occluder hides the {target}" if target
-                                                                       else ""), level="WARN")
+        out[EVENTS] = rr.TextLog(
+            f"occlusion event {index} starts" + (f": the occluder hides the {target}" if target else ""),
+            level="WARN",
+        )
     return out
 
 

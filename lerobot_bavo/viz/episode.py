@@ -121,7 +121,8 @@ def to_base_frame(points_c: np.ndarray, pose: np.ndarray) -> np.ndarray:
 
 
 def milestones_from_progress(progress: np.ndarray) -> np.ndarray:
-    """(T,) milestone depth -> (T, 5) flags: the tracker counts M_k only after M_{k-1}, so m_k = depth >= k."""
+    """(T,) milestone depth -> (T, 5) flags: the tracker counts M_k only after M_{k-1}, so m_k = depth >=
+    k."""
     return np.asarray(progress)[:, None] >= np.arange(1, 6)[None, :]
 
 
@@ -189,7 +190,9 @@ def _decode_segment(path: Path, t0: float, t1: float, fps: float, n: int) -> np.
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
         stream.thread_type = "NONE"
-        container.seek(max(0, int((t0 - 0.5 / fps) / stream.time_base)), stream=stream, backward=True, any_frame=False)
+        container.seek(
+            max(0, int((t0 - 0.5 / fps) / stream.time_base)), stream=stream, backward=True, any_frame=False
+        )
         for frame in container.decode(stream):
             k = int(round((float(frame.time) - t0) * fps))
             if k < 0:
@@ -202,7 +205,9 @@ def _decode_segment(path: Path, t0: float, t1: float, fps: float, n: int) -> np.
             out[k] = img
             last = k
     if out is None or last < n - 1:
-        raise ValueError(f"{path}: the video segment [{t0:.3f}, {t1:.3f}) s does not cover the episode's {n} frames")
+        raise ValueError(
+            f"{path}: the video segment [{t0:.3f}, {t1:.3f}) s does not cover the episode's {n} frames"
+        )
     return out
 
 
@@ -225,7 +230,9 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
     settings = json.loads(sidecar_path.read_text()).get("settings", {}) if sidecar_path.is_file() else {}
     row = _episode_row(root, episode)
 
-    data_file = root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
+    data_file = root / info["data_path"].format(
+        chunk_index=row["data/chunk_index"], file_index=row["data/file_index"]
+    )
     wanted = ["frame_index", "timestamp", OBS_POINT_CLOUD, OBS_CAMERA_POSE, ACTION,
               ANN_PROGRESS, ANN_VISIBILITY, ANN_EVENT, ANN_EVENT_START, ANN_ACTIVE, ANN_TARGET,
               ANN_OCCLUDER_POSE, TEACHER_Z0, TEACHER_ZF]
@@ -279,8 +286,11 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
         H, W = features[OBS_IMAGE]["shape"][:2]
         if video and features[OBS_IMAGE]["dtype"] == "video":
             key = OBS_IMAGE
-            vpath = root / info["video_path"].format(video_key=key, chunk_index=row[f"videos/{key}/chunk_index"],
-                                                     file_index=row[f"videos/{key}/file_index"])
+            vpath = root / info["video_path"].format(
+                video_key=key,
+                chunk_index=row[f"videos/{key}/chunk_index"],
+                file_index=row[f"videos/{key}/file_index"],
+            )
             rgb = _decode_segment(vpath, float(row[f"videos/{key}/from_timestamp"]),
                                   float(row[f"videos/{key}/to_timestamp"]), float(info["fps"]), T)
     if H is None:
@@ -306,7 +316,13 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
         teacher_zf=None if zf is None else zf.reshape(T, n, -1).astype(np.float32),
         action=take(col(ACTION, features[ACTION]["shape"][0])) if ACTION in features else None,
         name=f"{root.name} episode {episode}",
-        meta={"source": "dataset", "root": str(root), "episode_index": int(episode), "fps": float(info["fps"]),
-              "task": settings.get("task"), "condition": settings.get("condition"),
-              "point_frame": settings.get("point_frame", "base")},
+        meta={
+            "source": "dataset",
+            "root": str(root),
+            "episode_index": int(episode),
+            "fps": float(info["fps"]),
+            "task": settings.get("task"),
+            "condition": settings.get("condition"),
+            "point_frame": settings.get("point_frame", "base"),
+        },
     )

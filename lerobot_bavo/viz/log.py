@@ -22,17 +22,27 @@ def blueprint():
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(
-                rrb.Spatial3DView(name="scene (base frame)", origin=E.WORLD,
-                                  eye_controls=rrb.EyeControls3D(position=EYE_POSITION, look_target=EYE_TARGET,
-                                                                 eye_up=(0.0, 0.0, 1.0))),
+                rrb.Spatial3DView(
+                    name="scene (base frame)",
+                    origin=E.WORLD,
+                    eye_controls=rrb.EyeControls3D(
+                        position=EYE_POSITION, look_target=EYE_TARGET, eye_up=(0.0, 0.0, 1.0)
+                    ),
+                ),
                 rrb.Spatial2DView(name="active camera", origin=E.PINHOLE),
                 column_shares=[3, 2],
             ),
             rrb.Horizontal(
-                rrb.TimeSeriesView(name="visibility and events", origin="plots",
-                                   contents=[f"+ {E.VISIBILITY}", f"+ {E.EVENT_MARKERS}", f"+ {E.RECOVERING}"]),
-                rrb.TimeSeriesView(name="progress and milestones", origin="plots",
-                                   contents=[f"+ {E.PROGRESS}", f"+ {E.MILESTONES}/**"]),
+                rrb.TimeSeriesView(
+                    name="visibility and events",
+                    origin="plots",
+                    contents=[f"+ {E.VISIBILITY}", f"+ {E.EVENT_MARKERS}", f"+ {E.RECOVERING}"],
+                ),
+                rrb.TimeSeriesView(
+                    name="progress and milestones",
+                    origin="plots",
+                    contents=[f"+ {E.PROGRESS}", f"+ {E.MILESTONES}/**"],
+                ),
                 rrb.TextLogView(name="events", origin=E.EVENTS),
             ),
             row_shares=[3, 1],
@@ -47,7 +57,9 @@ def log_episode(rec, ep: EpisodeData, *, teacher: bool = False, relation_point: 
     import rerun as rr
 
     if relation_point is not None and not 0 <= relation_point < ep.n_points:
-        raise ValueError(f"--relation-point {relation_point} is out of range: the clouds have {ep.n_points} points")
+        raise ValueError(
+            f"--relation-point {relation_point} is out of range: the clouds have {ep.n_points} points"
+        )
     for path, value in E.static_entities(ep).items():
         rec.log(path, value, static=True)
     for k in range(ep.length):

@@ -29,9 +29,22 @@ class RolloutRecorder:
         self.K = intrinsics(s.fovy, s.image_height, s.image_width)
         self.image_size = (s.image_height, s.image_width)
         self.fps = float(env.metadata.get("render_fps", 25))
-        self.rows: dict[str, list] = {k: [] for k in (
-            "cloud", "pose", "rgb", "progress", "milestones", "visibility", "event", "event_start", "occluder",
-            "target", "action")}
+        self.rows: dict[str, list] = {
+            k: []
+            for k in (
+                "cloud",
+                "pose",
+                "rgb",
+                "progress",
+                "milestones",
+                "visibility",
+                "event",
+                "event_start",
+                "occluder",
+                "target",
+                "action",
+            )
+        }
         self.chunks: dict[int, np.ndarray] = {}
         self._kin = None
 
@@ -62,7 +75,9 @@ class RolloutRecorder:
             r["visibility"].append(-1.0 if vis is None else float(vis))
             r["event"].append(int(occ["event"]["index"]))
             r["event_start"].append(bool(occ["event_started"]))
-            r["occluder"].append(np.concatenate([occ["event"]["occluder_pos"], occ["event"]["occluder_quat"]]))
+            r["occluder"].append(
+                np.concatenate([occ["event"]["occluder_pos"], occ["event"]["occluder_quat"]])
+            )
             r["target"].append(occ["target"])
         r["action"].append(np.full(21, np.nan) if action is None else np.asarray(action, dtype=np.float64))
         if chunk is not None:

@@ -109,7 +109,8 @@ class Task(abc.ABC):
     # needs an entry; the occluder is placed on the line of sight to their centroid and V counts
     # their pixels.
     target_geom_names: dict[str, tuple[str, ...]] = {}
-    # Bodies whose 7-d poses are `object_poses` (and `environment_state`, in this order): {pose name: body name}.
+    # Bodies whose 7-d poses are `object_poses` (and `environment_state`, in this order): {pose name: body
+    # name}.
     pose_bodies: dict[str, str] = {}
 
     # Bound by `bind`.
@@ -125,15 +126,19 @@ class Task(abc.ABC):
         """Bind the shared handles and the Stage targets' geoms, then the task's own (`bind_objects`)."""
         missing = [t for t in self.stage_targets if t not in self.target_geom_names]
         if missing:
-            raise ValueError(f"task {self.name!r}: Stage target(s) {missing} have no entry in target_geom_names "
-                             f"(declared: {sorted(self.target_geom_names)})")
+            raise ValueError(
+                f"task {self.name!r}: Stage target(s) {missing} have no entry in target_geom_names "
+                f"(declared: {sorted(self.target_geom_names)})"
+            )
         geom_names = {model.geom(i).name for i in range(model.ngeom)}
         self.target_geoms = {}
         for target, names in self.target_geom_names.items():
             absent = [g for g in names if g not in geom_names]
             if absent or not names:
-                raise ValueError(f"task {self.name!r}: Stage target {target!r} names geom(s) {absent or names} "
-                                 "that the compiled model does not have (does build() add them?)")
+                raise ValueError(
+                    f"task {self.name!r}: Stage target {target!r} names geom(s) {absent or names} "
+                    "that the compiled model does not have (does build() add them?)"
+                )
             self.target_geoms[target] = tuple(model.geom(g).id for g in names)
         self.left = GripperGeoms(model, "left_")
         self.right = GripperGeoms(model, "right_")
@@ -145,14 +150,18 @@ class Task(abc.ABC):
         """Look up and cache the task's own ids (bodies, joints, geoms) once per compiled model."""
 
     @abc.abstractmethod
-    def initialize_episode(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None: ...
+    def initialize_episode(
+        self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator
+    ) -> None: ...
 
     @abc.abstractmethod
     def evaluate(self, model: mujoco.MjModel, data: mujoco.MjData) -> dict[str, bool]: ...
 
     def object_poses(self, model: mujoco.MjModel, data: mujoco.MjData) -> dict[str, np.ndarray]:
         """Privileged 7-d poses (xyz, wxyz quaternion) of the `pose_bodies`, for `info`."""
-        return {pose: np.concatenate([data.xpos[b], data.xquat[b]]) for pose, b in self._pose_body_ids.items()}
+        return {
+            pose: np.concatenate([data.xpos[b], data.xquat[b]]) for pose, b in self._pose_body_ids.items()
+        }
 
     def environment_state(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
         """`object_poses` flattened in their declared order: (7 * K,) float32 (xyz in metres, base frame;

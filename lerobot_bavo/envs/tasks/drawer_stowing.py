@@ -149,9 +149,15 @@ class DrawerStowing(Task):
                         fromto=[-HANDLE_HALF_LEN, HANDLE_Y, HANDLE_Z, HANDLE_HALF_LEN, HANDLE_Y, HANDLE_Z],
                         size=[HANDLE_RADIUS, 0, 0], mass=0.03, rgba=list(_METAL), group=C.GROUP_OBJECT)
         for i, sx in enumerate((-1, 1)):
-            drawer.add_geom(name=f"drawer_handle_post_{i}", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-                            fromto=[sx * HANDLE_POST_X, -PANEL_THICK, HANDLE_Z, sx * HANDLE_POST_X, HANDLE_Y, HANDLE_Z],
-                            size=[0.005, 0, 0], mass=0.01, rgba=list(_METAL), group=C.GROUP_OBJECT)
+            drawer.add_geom(
+                name=f"drawer_handle_post_{i}",
+                type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                fromto=[sx * HANDLE_POST_X, -PANEL_THICK, HANDLE_Z, sx * HANDLE_POST_X, HANDLE_Y, HANDLE_Z],
+                size=[0.005, 0, 0],
+                mass=0.01,
+                rgba=list(_METAL),
+                group=C.GROUP_OBJECT,
+            )
         spec.add_exclude(name="cabinet_drawer", bodyname1="cabinet", bodyname2="drawer")
 
         block = world.add_body(name="block", pos=[-0.22, -0.03, BLOCK_HALF])
@@ -197,7 +203,9 @@ class DrawerStowing(Task):
 
     def block_inside(self, data) -> bool:
         p = self.block_in_drawer_frame(data)
-        return bool(abs(p[0]) <= INNER_X and INNER_Y[0] <= p[1] <= INNER_Y[1] and INNER_Z[0] <= p[2] <= INNER_Z[1])
+        return bool(
+            abs(p[0]) <= INNER_X and INNER_Y[0] <= p[1] <= INNER_Y[1] and INNER_Z[0] <= p[2] <= INNER_Z[1]
+        )
 
     def handle_pos(self, data) -> np.ndarray:
         """World position of the middle of the handle bar."""

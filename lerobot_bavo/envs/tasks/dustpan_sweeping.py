@@ -145,8 +145,14 @@ class DustpanSweeping(Task):
     stage_targets = ("dustpan", "broom", "target_object")
     stage_transitions = (2, 3)
     target_geom_names = {
-        "dustpan": ("dustpan_plate", "dustpan_ramp", "dustpan_wall_left", "dustpan_wall_right", "dustpan_wall_back",
-                    "dustpan_handle"),
+        "dustpan": (
+            "dustpan_plate",
+            "dustpan_ramp",
+            "dustpan_wall_left",
+            "dustpan_wall_right",
+            "dustpan_wall_back",
+            "dustpan_handle",
+        ),
         "broom": ("broom_head", "broom_stock", "broom_handle"),
         "target_object": ("target_object_geom",),
     }

@@ -80,7 +80,11 @@ HANDLE_MASS = 0.05
 SPATULA_FRICTION = 0.3
 # Handle centre in the object frame: its +x end 2.5 cm under the blade, its top touching the
 # blade's underside.
-HANDLE_OFFSET = (-(BLADE_HALF[0] - HANDLE_UNDER_BLADE + HANDLE_HALF[0]), 0.0, -(BLADE_HALF[2] + HANDLE_HALF[2]))
+HANDLE_OFFSET = (
+    -(BLADE_HALF[0] - HANDLE_UNDER_BLADE + HANDLE_HALF[0]),
+    0.0,
+    -(BLADE_HALF[2] + HANDLE_HALF[2]),
+)
 # Handle tip (its -x end) in the object frame.
 HANDLE_TIP = (HANDLE_OFFSET[0] - HANDLE_HALF[0], 0.0, HANDLE_OFFSET[2])
 
@@ -126,9 +130,15 @@ class SlideRetrieval(Task):
         side_half_y = 0.5 * (hy - GROOVE_HALF_WIDTH)
         side_half_z = hz - FLOOR_HALF_HEIGHT
         for name, sign in (("platform_side_a", 1.0), ("platform_side_b", -1.0)):
-            platform.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, side_half_y, side_half_z],
-                              pos=[0, sign * (GROOVE_HALF_WIDTH + side_half_y), 2 * FLOOR_HALF_HEIGHT + side_half_z],
-                              rgba=rgba, group=C.GROUP_OBJECT, friction=friction)
+            platform.add_geom(
+                name=name,
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                size=[hx, side_half_y, side_half_z],
+                pos=[0, sign * (GROOVE_HALF_WIDTH + side_half_y), 2 * FLOOR_HALF_HEIGHT + side_half_z],
+                rgba=rgba,
+                group=C.GROUP_OBJECT,
+                friction=friction,
+            )
 
         spatula = spec.worldbody.add_body(name="spatula", pos=[0.0, 0.03, PLATFORM_TOP + BLADE_HALF[2]])
         spatula.add_freejoint(name="spatula_joint")
