@@ -1,4 +1,4 @@
-"""Wall time of a whole `bavo-collect` run for each task (issue 11: 100 Stage episodes, start-up included).
+"""Wall time of a whole `bavo-collect` run for each task (100 Stage episodes, start-up included).
 
 Runs the real command (`bavo-collect --task T --condition stage --episodes N --workers 2`) once per task, one
 after the other, each into a fresh folder, and prints per task: wall time from launch to exit (process start,

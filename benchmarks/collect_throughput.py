@@ -11,7 +11,7 @@ Runs a small real collection (default: 6 Stage episodes of Cube Handoff, 2 worke
   machine inflate the wall times);
 - bytes per frame on disk with and without the video, and per parquet column.
 
-Per-episode cost against episode index (issue 11: the cost per episode must stay flat as the dataset
+Per-episode cost against episode index (the cost per episode must stay flat as the dataset
 grows): the main process's write time of each episode (its `add_frame` calls and `save_episode`,
 recorded by the collector in the run's `timings`), each writer session's open + finalize overhead,
 and the wall time between commits per episode; printed in groups of 10 with the ratio of the last 10
@@ -23,7 +23,7 @@ to the first 10, and plotted with `--plot FILE.png`. A full 100-episode run:
     python benchmarks/collect_throughput.py [--episodes 6] [--workers 2] [--task cube_handoff] [--keep]
 
 Old against new worker path, side by side in one process (`--compare-paths N`): two recorders of the
-same settings, one with the worker's per-frame privileged renders as they were before issue 11's
+same settings, one with the worker's per-frame privileged renders as they were before the
 render cuts (`_legacy_privileged_view`: a segmentation pass that also reads depth back, the old id
 decode), one as now; they record the same seeds in alternating order, and the benchmark prints CPU ms
 per frame of each and their ratio (a ratio stays meaningful on a busy machine), checks that both give
@@ -218,7 +218,7 @@ BASELINE_WORKER_CPU_S, BASELINE_WRITER_CPU_S = 6.7, 3.4  # per episode
 
 
 def _legacy_privileged_view(recorder):
-    """The worker's privileged render before issue 11's cuts, verbatim: one segmentation pass that reads
+    """The worker's privileged render before the render cuts, verbatim: one segmentation pass that reads
     depth back too (the observation render had already read the same z-buffer), and the old id decode."""
     import mujoco
     import numpy as np

@@ -1,4 +1,4 @@
-"""Whole `bavo-collect` runs of this checkout against another commit, side by side (issue 11).
+"""Whole `bavo-collect` runs of this checkout against another commit, side by side.
 
 The machines are noisy (the same 100-episode run differs by ~5 % from one hour to the next), so a change to
 collection is judged by runs of both versions alternating in one sitting. This checks the other commit out

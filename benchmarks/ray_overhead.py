@@ -1,4 +1,4 @@
-"""Overhead of `bavo-eval --executor ray` against `--executor local` on the same cores, same run (issue 15).
+"""Overhead of `bavo-eval --executor ray` against `--executor local` on the same cores, same run.
 
 Runs the same evaluation (default: the scripted expert, Cube Handoff, clean, 10 episodes, no videos, 2
 workers) as a whole `bavo-eval` command, once per executor and repeat, alternating which goes first, each into

@@ -31,7 +31,7 @@ How it works:
   (new files deleted, metadata restored) and redone from the staged episodes, which are deleted
   only after the record says they are committed. Finished episodes are never lost or duplicated.
 - The active camera is stored as video (`video_codec.py`): x264 for a new dataset (GOP 2, CRF 20, one thread,
-  SSE4.2 SIMD: the same quality as LeRobot's SVT-AV1 for ~4x less CPU, and reproducible bytes),
+  SSE4.2 SIMD: the same quality as LeRobot's SVT-AV1 for several times less CPU, and reproducible bytes),
   `--vcodec libsvtav1` for LeRobot's AV1 (what earlier versions wrote); a dataset being continued keeps its
   own codec.
 - At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`), the
@@ -296,7 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         choices=VIDEO_CODECS,
         help="codec of the active camera's video: h264 (x264, GOP 2, CRF 20, preset faster; the default "
-        "for a new dataset: the same quality as AV1 for ~4x less CPU) or libsvtav1 (LeRobot's default "
+        "for a new dataset: the same quality as AV1 for several times less CPU) or libsvtav1 (LeRobot's "
+        "default "
         "AV1: GOP 2, CRF 30, preset 12; what bavo-collect wrote before). Default: h264 for a new "
         "dataset, the dataset's own codec when continuing one",
     )

@@ -4,7 +4,7 @@ Why: when `save_episode` runs, LeRobot's `compute_episode_stats` gives every dim
 feature its own 5000-bin histogram (`RunningQuantileStats`, one `np.histogram` call per dimension) and
 then scans each histogram's cumulative sum once per quantile (q01, q10, q50, q90, q99). BAVO's flat
 features are wide (point cloud 256 x 6, point pixels 256 x 2, teacher targets), so on 2 cores this was
-~37 % of the collection writer's CPU (issue 11 profile: py-spy on a running `bavo-collect`).
+the largest share of the collection writer's CPU (measured in docs/results/costs.md).
 
 A quantile of LeRobot's histogram only needs the histogram's cumulative count at two bins, and the
 cumulative count up to bin k is the number of values below bin edge k + 1. `vector_stats` counts those

@@ -3,11 +3,10 @@
 Why: LeRobot 0.6.1 reads every training sample row by row from the Arrow table through
 `datasets` (`DatasetReader.get_item`), and answers each `delta_timestamps` window with one more
 query per key. For a ManiFlow/A-FAR sample of the `points` view (2 observation steps of state,
-cloud and four teacher features, 16 actions) that costs ~10-26 ms on these 2-core machines,
-more than the policy's own training step at the `cpu_fast` preset. The data of a training view
-is small enough to hold in memory (the 100-episode Cube Handoff points view is ~0.7 GB as
-float32), so every column is read once, as contiguous tensors, and a sample becomes a few index
-operations (well under 1 ms).
+cloud and four teacher features, 16 actions) that costs more than the policy's own training step
+at the `cpu_fast` preset on 2-core machines (docs/results/costs.md). The data of a training view
+is small enough to hold in memory, so every column is read once, as contiguous tensors, and a
+sample becomes a few index operations.
 
 What stays LeRobot's: the `LeRobotDataset` object itself (metadata, episodes, stats, samplers,
 everything `lerobot-train` touches); only its reader's `get_item` is replaced by

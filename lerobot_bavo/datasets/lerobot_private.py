@@ -10,26 +10,27 @@ offer:
    `_metadata_buffer`, `_is_finalized`).
 2. Skipping a no-op pass. `DatasetWriter._save_episode_data` calls `io_utils.embed_images`, a
    row-by-row `datasets.map`, on every episode. With images stored as video no column needs
-   embedding and the pass returns the table unchanged, yet it costs ~13 ms per frame (half of the
-   writer's time). `skip_noop_image_embedding` replaces the module attribute in exactly that case.
+   embedding and the pass returns the table unchanged, yet it costs about half of the writer's time
+   (docs/results/costs.md, as for items 3-5). `skip_noop_image_embedding` replaces the module attribute in
+   exactly that case.
 3. Cheaper episode statistics. `DatasetWriter.save_episode` calls `compute_stats.compute_episode_stats`,
-   which builds a 5000-bin histogram per dimension of every numeric feature (~37 % of the writer's CPU
-   for BAVO's wide features). `exact_fast_episode_stats` swaps in `datasets.episode_stats`, which gives
-   the same statistics bit for bit (tested against LeRobot's function) without the histograms.
+   which builds a 5000-bin histogram per dimension of every numeric feature (a large share of the
+   writer's CPU for BAVO's wide features). `exact_fast_episode_stats` swaps in `datasets.episode_stats`, which
+   gives the same statistics bit for bit (tested against LeRobot's function) without the histograms.
 4. Cheaper streaming image statistics. LeRobot's video encoder thread updates a
-   `compute_stats.RunningQuantileStats` with every frame (~1.5 ms per frame, ~0.65 s of writer CPU per
-   Cube Handoff episode). `deferred_video_frame_stats` swaps in `datasets.video_stats.DeferredFrameStats`,
+   `compute_stats.RunningQuantileStats` with every frame (a float32 reduction and histograms per
+   frame). `deferred_video_frame_stats` swaps in `datasets.video_stats.DeferredFrameStats`,
    a subclass that replays the same updates once per episode, bit for bit; it relies on the parent's
    private fields (`STATS_FIELDS`).
 5. A cheaper episode table. `DatasetWriter._save_episode_data` builds each episode's table with
-   `datasets.Dataset.from_dict` (~0.26 s per 450-frame episode, mostly Python work per column and
-   feature bookkeeping) and writes `with_format("arrow")[:]` of it. `arrow_episode_tables` gives LeRobot's
-   writer module a `datasets` whose `Dataset.from_dict` builds the same Arrow table directly from the
-   numpy columns (~0.03 s) when every column is a plain number or a fixed-length list of numbers with
-   exactly the feature's dtype, and calls the real `from_dict` otherwise; the written parquet files are
-   the same bytes (tested). The `datasets.Dataset` object differs in one thing, its `_fingerprint` (a hash of
-   its in-memory buffers); only LeRobot's `embed_images` pass would write it into a file, and that pass is
-   skipped within the block (item 2; it is a no-op whenever the shortcut applies).
+   `datasets.Dataset.from_dict` (mostly Python work per column and feature bookkeeping) and writes
+   `with_format("arrow")[:]` of it. `arrow_episode_tables` gives LeRobot's writer module a `datasets` whose
+   `Dataset.from_dict` builds the same Arrow table directly from the numpy columns (an order of magnitude
+   faster) when every column is a plain number or a fixed-length list of numbers with exactly the feature's
+   dtype, and calls the real `from_dict` otherwise; the written parquet files are the same bytes (tested). The
+   `datasets.Dataset` object differs in one thing, its `_fingerprint` (a hash of its in-memory buffers); only
+   LeRobot's `embed_images` pass would write it into a file, and that pass is skipped within the block (item
+   2; it is a no-op whenever the shortcut applies).
 
 6. Loading a policy config without litter. `PreTrainedConfig.from_pretrained` copies config.json into a
    `tempfile.NamedTemporaryFile(delete=False)` for draccus and never removes it: every checkpoint load left a

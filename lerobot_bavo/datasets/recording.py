@@ -233,7 +233,7 @@ class EpisodeRecorder:
     def _privileged_view(self) -> tuple[np.ndarray, np.ndarray]:
         """(geom id per pixel, z-depth) of the current state, from one segmentation pass with depth readback.
 
-        Reusing the observation's own depth (`BavoEnv.observation_depth`) instead was tried for issue 11: it
+        Reusing the observation's own depth (`BavoEnv.observation_depth`) instead was tried: it
         is bit-identical at 48 x 64 (`tests/test_datasets.py`, `tests/test_collect_content.py`), but
         `benchmarks/collect_throughput.py --compare-paths` at 240 x 320 reported non-identical privileged
         arrays (not yet diagnosed), so the readback stays until that is understood.

@@ -275,8 +275,8 @@ def channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)) 
 
     Returns min, max, mean, std (population), count and q01/q10/q50/q90/q99, each (C,) (count (1,)).
     The values are those of numpy's `min`, `max`, `mean`, `std` and `quantile` along axis 0 of the float64
-    (M, C) array, bit for bit, computed so that a whole dataset's point cloud (M ~ 11 million points) takes
-    ~1.5 s instead of ~8 (it runs once at the end of `bavo-collect`, when the workers are done): the
+    (M, C) array, bit for bit, computed so that a whole dataset's point cloud (millions of points) takes a
+    fraction of numpy's time (docs/results/costs.md; it runs once at the end of `bavo-collect`): the
     quantiles in one partition per channel of a float64 channel-major copy made in one pass, on two threads;
     the sums for the mean and the std in row blocks (`_row_sum`), each block continuing the previous total
     as numpy's axis-0 sum adds rows, instead of in arrays as large as the input.

@@ -66,8 +66,8 @@ def _recorder(job: dict):
 
 def warm_job(job: dict) -> None:
     """Build this worker's recorder for `job` without recording anything: `bavo-collect` sends one per worker
-    before its own start-up (importing LeRobot, opening the dataset, ~3 s of one core), so the workers' set-up
-    (imports, model, GL contexts, ~1.5 s each) runs meanwhile instead of after it."""
+    before its own start-up (importing LeRobot, opening the dataset: seconds of one core), so the workers'
+    set-up (imports, model, GL contexts) runs meanwhile instead of after it."""
     _recorder(job)
 
 

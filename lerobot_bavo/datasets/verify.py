@@ -9,8 +9,8 @@ Why:
   a resumed collection kept it and the views builder copied it, both with exit 0, and training failed on it.
   `check_committed_files` reads every parquet page and compares each file's rows with what the episode
   metadata says it holds, and demuxes every mp4 (and decodes its last group of pictures), comparing its frame
-  count with the episodes stored in it. Cost: ~2.5 s for a 760 MB, 100-episode dataset (parquet reads; the
-  video demux is ~50 ms per 13 MB file).
+  count with the episodes stored in it. Cost: seconds for a 100-episode dataset, mostly parquet reads
+  (docs/results/costs.md).
 """
 
 from __future__ import annotations

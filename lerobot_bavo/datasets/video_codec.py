@@ -1,14 +1,11 @@
 """How `bavo-collect` encodes the active camera's frames: the video codec choices and their LeRobot settings.
 
-Why a choice (issue 11): LeRobot's default for RGB streams is SVT-AV1 (`libsvtav1`, GOP 2, CRF 30, preset 12,
+Why a choice: LeRobot's default for RGB streams is SVT-AV1 (`libsvtav1`, GOP 2, CRF 30, preset 12,
 which SVT-AV1 3.0 runs as its fastest preset M10). At BAVO's 240 x 320 it is the largest single cost of a
-collection: ~4.8 ms of CPU per frame, ~2.3 s per Drawer Stowing episode, more than a quarter of all collection
-CPU on 2 cores, and no SVT-AV1 setting that keeps its output (threads, asm level) makes it cheaper.
+collection, and no SVT-AV1 setting that keeps its output (threads, asm level) makes it cheaper.
 x264 at GOP 2 (the same random access for training), preset "faster", CRF 20 gives the same quality for
-~4x less CPU (523 frames of a Drawer Stowing episode: PSNR against the rendered frames 36.27 dB mean /
-33.90 dB worst frame vs SVT-AV1's 36.21 / 30.79; 0.60 vs 2.26-2.5 s of CPU; 3.02 vs 2.64 KB per frame;
-decoding 0.30 vs 0.43 ms per frame with PyAV), so it is the default for new datasets. The frames handed to
-the encoder, their statistics and every other column are the same under both codecs.
+several times less CPU (the measurements: docs/results/costs.md), so it is the default for new datasets. The
+frames handed to the encoder, their statistics and every other column are the same under both codecs.
 
 Reproducibility (the same seeds give the same video bytes):
 - x264 runs with one thread: its bitstream depends on its thread count, which would otherwise follow the
@@ -17,9 +14,9 @@ Reproducibility (the same seeds give the same video bytes):
   AVX-512 code (x264 core 165, as bundled with PyAV 15) gave a different bitstream from run to run inside
   `bavo-collect` (4 of 6 identical 1-episode collections at 240 x 320 differed; with `asm=SSE4.2` 12 of 12
   agreed, with `asm=AVX2` 6 of 6, and with `asm=0` 6 of 6 at 48 x 64), so it reads memory it does not own. Its
-  SSE4.2 and AVX2 code give the same bytes and, at 240 x 320, the same CPU time (0.64 vs 0.62 s per 523
-  frames), so SSE4.2 is the limit: every x86-64 machine since 2011 has it, and the recorded encoder options
-  are the same on all of them. Other architectures use x264's own choice.
+  SSE4.2 and AVX2 code give the same bytes and, at 240 x 320, the same CPU time, so SSE4.2 is the limit: every
+  x86-64 machine since 2011 has it, and the recorded encoder options are the same on all of them. Other
+  architectures use x264's own choice.
 - SVT-AV1 keeps LeRobot's own settings, thread count included (its bitstream depends on neither thread count
   nor SIMD level), so `libsvtav1` writes exactly the videos earlier versions of `bavo-collect` wrote.
 

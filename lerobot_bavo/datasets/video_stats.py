@@ -3,9 +3,9 @@
 Why: with `streaming_encoding=True` LeRobot's encoder thread (`video_utils._CameraEncoderThread`) feeds
 every frame of a video feature to a `compute_stats.RunningQuantileStats`: it converts the (down-sampled,
 here 120 x 160) frame to float32, takes per-channel means, means of squares, minima and maxima along
-axis 0 of an (H * W, 3) array (a reduction whose inner loop runs over 3 channels, ~1.5 ms per frame on
-these machines) and a 5000-bin `np.histogram` per channel. For a 434-frame Cube Handoff episode that is
-~0.65 s of the collection writer's CPU (issue 11 profile), for statistics of uint8 pixels.
+axis 0 of an (H * W, 3) array (a reduction whose inner loop runs over 3 channels) and a 5000-bin
+`np.histogram` per channel: a noticeable part of the collection writer's CPU (docs/results/costs.md), for
+statistics of uint8 pixels.
 
 `DeferredFrameStats` is a `RunningQuantileStats` that, for uint8 frames, only keeps each frame in
 `update` and replays the same sequence of updates in `get_statistics` with whole-episode array

@@ -2,9 +2,9 @@
 
 Why: `lerobot-train` loads *every* feature of a dataset for every sample, and gives every
 `observation.*` key the policy's observation steps. On these 2-core machines that dominates
-training time: for a ManiFlow/A-FAR batch of 16 the full BAVO schema costs ~45 ms per sample
-(video decoding, point pixels, camera pose, annotations, all unused), the point-cloud view
-~26 ms. LeRobot's built-in image policies (ACT, Diffusion) additionally cannot read our
+training time: for a ManiFlow/A-FAR batch the full BAVO schema costs far more per sample (video
+decoding, point pixels, camera pose, annotations, all unused) than the point-cloud view
+(docs/results/costs.md). LeRobot's built-in image policies (ACT, Diffusion) additionally cannot read our
 flattened point cloud at evaluation (the env returns it as (N, 6), the dataset stats are flat),
 so they must be trained on a copy without it.
 

@@ -6,16 +6,14 @@ the commit pending in the collection record, `LeRobotDataset.resume`, append sta
 before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
 after the record says they are committed, so a rolled-back commit is redone from them by the next run.
 
-Why episode by episode (`StreamingWriter`, issue 11): the writer was about 40 % of collection CPU (LeRobot's
-video stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at
-once (~20 s for 10), the 2 x `--workers` attempts in flight ran out during the commit, and the last batch was
-written after every worker had finished: a CPU trace of a 30-episode run on an idle 2-core machine showed the
-cores ~9 % idle. Now each kept episode is written as soon as it and every lower seed are resolved (~2 s, less
-than the attempts in flight keep the workers busy for), into a session opened at the batch's first episode
-and closed at its last, so the sessions hold exactly the same episodes as before (the same files, the same
-record); the trace shows ~2-3 % idle (start-up and the last episode). Writing from a background thread
-instead was tried: whole 30-episode runs side by side gave the same wall time (thread / main loop 1.009) and
-CPU (1.005), so the simpler synchronous writer was kept.
+Why episode by episode (`StreamingWriter`): the writer is a large part of collection CPU (LeRobot's video
+stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at once, the
+2 x `--workers` attempts in flight ran out during the commit, and the last batch was written after every
+worker had finished, leaving cores idle. Now each kept episode is written as soon as it and every lower seed
+are resolved (quicker than the attempts in flight keep the workers busy for), into a session opened at the
+batch's first episode and closed at its last, so the sessions hold exactly the same episodes as before (the
+same files, the same record). Writing from a background thread instead was tried and gave the same wall time
+and CPU, so the simpler synchronous writer was kept (the measurements: docs/results/costs.md).
 """
 
 from __future__ import annotations

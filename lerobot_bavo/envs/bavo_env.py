@@ -380,7 +380,7 @@ class BavoEnv(gym.Env):
     @property
     def observation_depth(self) -> np.ndarray | None:
         """Z-depth (H, W) float32 metres of the last observation's render (privileged; not part of the
-        observation). Kept for the follow-up of issue 11: whether the teacher can reuse it instead of reading
+        observation). Kept for a follow-up: whether the teacher can reuse it instead of reading
         depth back a second time is not settled (identical at 48 x 64 in tests/test_datasets.py, not shown at
         240 x 320), so the recorder does not use it yet."""
         return self._observation_depth

@@ -1,4 +1,4 @@
-"""`bavo-eval --grid FILE.yaml`: methods x tasks x conditions x training seeds in one command (issue 15).
+"""`bavo-eval --grid FILE.yaml`: methods x tasks x conditions x training seeds in one command.
 
 A grid file (YAML) names the cells; `configs/grid_expert.yaml` is an example:
 
@@ -208,8 +208,8 @@ def parse_grid(data, source: str = "grid") -> Grid:
 def _no_aliases_loader():
     """PyYAML's safe loader refusing anchors and aliases (`&name`, `*name`).
 
-    Why: aliases let a few hundred bytes stand for a structure of billions of items (a 456-byte "billion
-    laughs" under `tasks:` took 18 s and 2.3 GB, in the error message's repr). A grid file never needs
+    Why: aliases let a few hundred bytes stand for a structure of billions of items (a "billion laughs"
+    under `tasks:` took many seconds and gigabytes, in the error message's repr). A grid file never needs
     them."""
     import yaml
 

@@ -55,7 +55,7 @@ def limit_threads() -> None:
     """One BLAS / OpenMP / torch thread per worker process (2-core machines) and headless GL.
 
     PyTorch is not imported for this: an expert episode never needs it, and a fresh Ray worker would pay
-    ~3 s for the import (issue 15). If torch is already loaded (a forked local-pool worker inherits it) its
+    seconds for the import. If torch is already loaded (a forked local-pool worker inherits it) its
     thread count is set now; otherwise OMP_NUM_THREADS=1 is set, which torch reads when a job imports it
     later (e.g. to load a checkpoint)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -91,10 +91,10 @@ RETAINED_FREE_BYTES = 2**31 - 1  # free heap memory kept for reuse before glibc 
 def retain_freed_memory() -> bool:
     """Let glibc's allocator reuse freed memory for large arrays instead of unmapping it (glibc only).
 
-    Why (issue 11): an episode's per-frame arrays (240 x 320 renders, ~110-310 MB per episode) are larger than
+    Why: an episode's per-frame arrays (240 x 320 renders, hundreds of MB per episode) are larger than
     glibc's mmap threshold (at most 32 MB when adjusted dynamically), so each one was mapped fresh and
-    unmapped when freed, and every episode paid the kernel's page faults and zeroing again: 0.3-0.7 s of the
-    episode's final `np.stack` in 3 of 4 consecutive Drawer Stowing episodes. Serving such allocations from
+    unmapped when freed, and every episode paid the kernel's page faults and zeroing again in its final
+    `np.stack` (docs/results/costs.md). Serving such allocations from
     the heap, and keeping freed heap memory instead of trimming it, makes the next episode reuse the same
     pages. Values are unchanged (only where the memory comes from); a process keeps its peak heap size (a few
     hundred MB for a collection worker). Returns False (and changes nothing) where `mallopt` is not

@@ -1,4 +1,4 @@
-"""`RayPool`: the `WorkerPool` interface (`imap` over job dicts) on Ray, for `--executor ray` (issue 15).
+"""`RayPool`: the `WorkerPool` interface (`imap` over job dicts) on Ray, for `--executor ray`.
 
 Imported only for `--executor ray`: `--executor local` never imports Ray. Ray is an optional extra
 (`pip install lerobot_env_bavo[ray]`); without it `RayPool` raises `RayMissingError` naming the extra.
@@ -23,7 +23,7 @@ Imported only for `--executor ray`: `--executor local` never imports Ray. Ray is
   PYTHONPATH, so a source checkout runs unchanged; cluster nodes need the package installed (README, "Running
   on a Ray cluster"). A private Ray's workers run at nice 0 like a local pool's (Ray's default is 15:
   `RAY_worker_niceness`; a cluster's is set where it is started, `RAY_worker_niceness=0 ray start ...`). A
-  private Ray sends no usage statistics (`RAY_USAGE_STATS_ENABLED=0`; it saves ~1 s of its start).
+  private Ray sends no usage statistics (`RAY_USAGE_STATS_ENABLED=0`; it shortens its start).
 """
 
 from __future__ import annotations
@@ -99,16 +99,16 @@ class RayPool:
                 env.pop("PYTHONPATH")
                 ray.init(address=address, runtime_env={"env_vars": env}, **kwargs)
             else:  # a private Ray on this machine, `workers` CPUs, loopback only; its workers inherit this
-                # process's environment when Ray starts (faster than a runtime_env: ~0.4 s instead of ~5 s to
-                # the first task on 2 cores, as the prestarted workers are used)
+                # process's environment when Ray starts (faster than a runtime_env to the first task, as the
+                # prestarted workers are used; docs/results/costs.md)
                 saved = dict(os.environ)
                 os.environ.update(env)
                 # Ray starts its workers at nice 15 by default: beside any other load on a 2-core machine (a
-                # training, the collection writer) the episodes then crawl (measured 6x slower beside one
-                # training); a local pool's workers run at the caller's priority, so these do too
+                # training, the collection writer) the episodes then crawl; a local pool's workers run at the
+                # caller's priority, so these do too
                 os.environ.setdefault(WORKER_NICENESS_VAR, "0")
-                # A private, loopback-only Ray reports no usage statistics: the report's set-up took ~1 s of
-                # ray.init's ~3.3 s on 2 cores (measured with cProfile, issue 15's overhead)
+                # A private, loopback-only Ray reports no usage statistics: the report's set-up was a large
+                # part of ray.init on 2 cores (docs/results/costs.md)
                 os.environ.setdefault(USAGE_STATS_VAR, "0")
                 try:
                     ray.init(num_cpus=workers, _node_ip_address="127.0.0.1", **kwargs)

@@ -122,8 +122,8 @@ class SceneRenderer:
 
         MuJoCo writes index + 1 of the scene geom drawn at a pixel as R + 256 G + 65536 B (0: nothing); a
         lookup table indexed by that raw id maps 0, and anything beyond the scene, to -1. `np.take` rather
-        than fancy indexing for the lookup: same values, a third of the time (issue 11; tested against the
-        plain decode in tests/test_rendering.py).
+        than fancy indexing for the lookup: same values, in less time (tested against the plain decode in
+        tests/test_rendering.py).
         """
         rgb = self._rgb
         raw = rgb[..., 0].astype(np.uint32)
@@ -153,7 +153,7 @@ def _context_of_size(model: mujoco.MjModel, width: int, height: int) -> mujoco.M
 
     MuJoCo sizes the offscreen buffer from `model.vis.global_.offwidth/offheight` (640 x 480 here, for the
     largest image any renderer of the model draws); a renderer that only ever draws a smaller image gets a
-    buffer of its own size, which makes each render ~5 % cheaper on llvmpipe (issue 11) and leaves its pixels
+    buffer of its own size, which makes each render cheaper on llvmpipe and leaves its pixels
     unchanged (`tests/test_rendering.py` compares both buffers). The model's values are restored at once.
     """
     vis = model.vis.global_

@@ -1,6 +1,6 @@
 """The BAVO world: table, lights, third-person camera and the three arms, built with MjSpec.
 
-Task objects are added by each task's `build(spec)`; the benchmark occluder (issue 4) is added
+Task objects are added by each task's `build(spec)`; the benchmark occluder is added
 only for conditions that use it, so a Clean model contains no occluder at all.
 """
 

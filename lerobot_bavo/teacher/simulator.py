@@ -163,7 +163,7 @@ def teacher_targets(episode, teacher=None, n_future: int = 15, clip_length: int 
     visible = np.ones((T, N), dtype=np.float32)
     valid = np.zeros(T, dtype=np.float32)
     if isinstance(teacher, SimulatorTeacher):
-        # The whole episode at once (issue 11: ~3x less CPU than 2 T calls of `answer`). Frame t's queries are
+        # The whole episode at once (less CPU than 2 T calls of `answer`). Frame t's queries are
         # answered on the clip anchored at t, so their clip indices map to these episode frames.
         clip = make_clip(episode, 0, clip_length, anchor_index)  # only its per-episode arrays are used
         frames = np.arange(T)
