@@ -1,7 +1,7 @@
-"""Matrix-multiply FLOPs of one ManiFlow / A-FAR training step per sample (forward, backward and the EMA teacher's
-pass), counted by torch.utils.flop_counter on the CPU with a synthetic batch of BAVO's shapes (256 xyz+rgb points,
-21-dim state and action, 3-dim teacher features). Counts what a GPU must compute whatever its speed; elementwise
-operations are not counted.
+"""Matrix-multiply FLOPs of one ManiFlow / A-FAR training step per sample (forward, backward and the EMA
+teacher's pass), counted by torch.utils.flop_counter on the CPU with a synthetic batch of BAVO's shapes (256
+xyz+rgb points, 21-dim state and action, 3-dim teacher features). Counts what a GPU must compute whatever its
+speed; elementwise operations are not counted.
 
 Run it for the code on the path; for an older commit put that commit's `lerobot_bavo/` first on the path:
     python benchmarks/train_flops.py --preset paper
@@ -36,7 +36,9 @@ def main() -> None:
     inputs = {"observation.point_cloud": PolicyFeature(FeatureType.STATE, (N_POINTS * 6,)),
               "observation.state": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
     outputs = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
-    config_cls, policy_cls = (AfarConfig, AfarPolicy) if args.policy == "afar" else (ManiFlowConfig, ManiFlowPolicy)
+    config_cls, policy_cls = (
+        (AfarConfig, AfarPolicy) if args.policy == "afar" else (ManiFlowConfig, ManiFlowPolicy)
+    )
     torch.manual_seed(0)
     policy = policy_cls(config_cls(input_features=inputs, output_features=outputs, preset=args.preset,
                                    device="cpu")).train()
@@ -52,8 +54,11 @@ def main() -> None:
         loss, _ = policy.forward(batch)
         loss.backward()
     n_params = sum(p.numel() for p in policy.model.parameters())
-    print(f"{lerobot_bavo.__file__}: {args.policy}, preset {args.preset} ({n_params / 1e6:.1f} M parameters), "
-          f"{counter.get_total_flops() / b / 1e9:.3g} GFLOP per training sample (forward + backward + EMA teacher)")
+    print(
+        f"{lerobot_bavo.__file__}: {args.policy}, preset {args.preset} ({n_params / 1e6:.1f} M parameters), "
+        f"{counter.get_total_flops() / b / 1e9:.3g} GFLOP per training sample (forward + backward + EMA "
+        "teacher)"
+    )
 
 
 if __name__ == "__main__":

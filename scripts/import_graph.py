@@ -41,12 +41,28 @@ FORBIDDEN = [
 
 
 # Private-looking names that are their library's documented API.
-ALLOWED = {"_exit", "_foreach_lerp_", "_multiarray_umath", "_core"}
+ALLOWED = {"_exit", "_multiarray_umath", "_core"}
+ALLOWED_PREFIXES = ("_foreach_",)  # torch's multi-tensor ops
 PRIVATE_HOME = "lerobot_bavo.datasets.lerobot_private"
 
 
 def is_private(name: str) -> bool:
-    return name.startswith("_") and not name.startswith("__") and name not in ALLOWED
+    return (name.startswith("_") and not name.startswith("__") and name not in ALLOWED
+            and not name.startswith(ALLOWED_PREFIXES))
+
+
+def own_private_names(tree: ast.AST) -> set[str]:
+    """Private names a module defines itself (functions, methods, classes, `self._x = ...`). Using one on
+    another object (`other._x`) stays inside the module when no other module defines that name too."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            for t in node.targets if isinstance(node, ast.Assign) else [node.target]:
+                if isinstance(t, ast.Attribute):
+                    names.add(t.attr)
+    return {n for n in names if is_private(n)}
 
 
 def module_name(path: Path) -> str:
@@ -69,11 +85,17 @@ def resolve(importer: str, is_pkg: bool, node: ast.ImportFrom) -> str:
 
 def scan(paths: list[Path]):
     modules = {module_name(p): p for p in paths}
+    trees = {mod: ast.parse(path.read_text(), str(path)) for mod, path in modules.items()}
+    defined_in: dict[str, set[str]] = defaultdict(set)
+    for mod, tree in trees.items():
+        for name in own_private_names(tree):
+            defined_in[name].add(mod)
     edges: dict[str, set[str]] = defaultdict(set)
     private: list[tuple[str, int, str]] = []  # (module, line, expression)
     for mod, path in modules.items():
-        tree = ast.parse(path.read_text(), str(path))
+        tree = trees[mod]
         is_pkg = path.name == "__init__.py"
+        own = {name for name, where in defined_in.items() if where == {mod}}
         for node in ast.walk(tree):
             targets: list[str] = []
             if isinstance(node, ast.Import):
@@ -93,9 +115,12 @@ def scan(paths: list[Path]):
                         break
             if mod == PRIVATE_HOME:
                 continue
-            if isinstance(node, ast.Attribute) and is_private(node.attr):
+            if isinstance(node, ast.Attribute) and is_private(node.attr) and node.attr not in own:
                 owner = node.value
-                if not (isinstance(owner, ast.Name) and owner.id in ("self", "cls")):
+                is_self = isinstance(owner, ast.Name) and owner.id in ("self", "cls")
+                is_super = (isinstance(owner, ast.Call) and isinstance(owner.func, ast.Name)
+                            and owner.func.id == "super")
+                if not (is_self or is_super):
                     private.append((mod, node.lineno, ast.unparse(node)))
             if isinstance(node, ast.ImportFrom):
                 base = resolve(mod, is_pkg, node)

@@ -19,7 +19,8 @@ from lerobot_bavo.eval.metrics import wilson_interval
 
 CONDITIONS = ("clean", "stage", "random")
 # The paper's per-task SR and TPS (%), Appendix tables "Task-level success rate" / "task progress score",
-# mean over three training seeds, 20 episodes per condition each: {task: {method: ((C, S, R) SR, (C, S, R) TPS)}}.
+# mean over three training seeds, 20 episodes per condition each: {task: {method: ((C, S, R) SR, (C, S, R)
+# TPS)}}.
 PAPER = {
     "cube_handoff": {
         "ACT": ((0.0, 6.7, 0.0), (33.0, 44.0, 24.0)),
@@ -56,7 +57,11 @@ def table(runs: dict[str, list[Path]]) -> str:
             srs = [sr_text(cell) if cell else "-" for cell in row]
             tps = [f"{cell['tps']:.1f}" if cell else "-" for cell in row]
             cvg = row[2]["cvg"] if row[2] and row[2].get("cvg") is not None else None
-            lines.append(f"| {task} | {label} | " + " | ".join(srs + tps) + f" | {'-' if cvg is None else f'{cvg:.1f}'} |")
+            lines.append(
+                f"| {task} | {label} | "
+                + " | ".join(srs + tps)
+                + f" | {'-' if cvg is None else f'{cvg:.1f}'} |"
+            )
         for method, (sr, tps) in PAPER.get(task, {}).items():
             lines.append(f"| {task} | paper: {method} | " + " | ".join(f"{v:.1f}" for v in sr) + " | " +
                          " | ".join(f"{v:.1f}" for v in tps) + " | |")
@@ -65,8 +70,13 @@ def table(runs: dict[str, list[Path]]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--run", action="append", required=True, metavar="LABEL=results.json",
-                   help="a bavo-eval results.json and the row label it gets (repeat the label for more files)")
+    p.add_argument(
+        "--run",
+        action="append",
+        required=True,
+        metavar="LABEL=results.json",
+        help="a bavo-eval results.json and the row label it gets (repeat the label for more files)",
+    )
     args = p.parse_args(argv)
     runs: dict[str, list[Path]] = {}
     for item in args.run:

@@ -9,9 +9,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from safetensors.torch import load_file, save_file
-
 from lerobot.configs import FeatureType, PolicyFeature
+from safetensors.torch import load_file, save_file
 
 from lerobot_bavo.policies import AfarConfig, AfarPolicy
 
@@ -24,8 +23,13 @@ N = 16
 def _policy() -> AfarPolicy:
     inputs = {"observation.point_cloud": PolicyFeature(FeatureType.STATE, (N * 6,)),
               "observation.state": PolicyFeature(FeatureType.STATE, (21,))}
-    cfg = AfarConfig(input_features=inputs, output_features={"action": PolicyFeature(FeatureType.ACTION, (21,))},
-                     preset="cpu_fast", device="cpu", points_per_step=8)
+    cfg = AfarConfig(
+        input_features=inputs,
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (21,))},
+        preset="cpu_fast",
+        device="cpu",
+        points_per_step=8,
+    )
     torch.manual_seed(0)
     policy = AfarPolicy(cfg)
     with torch.no_grad():  # EMA and training copies differ, as after training
@@ -38,7 +42,10 @@ def _policy() -> AfarPolicy:
 
 def _actions(policy) -> torch.Tensor:
     g = torch.Generator().manual_seed(1)
-    obs = {"observation.point_cloud": torch.rand(1, N, 6, generator=g), "observation.state": torch.rand(1, 21, generator=g)}
+    obs = {
+        "observation.point_cloud": torch.rand(1, N, 6, generator=g),
+        "observation.state": torch.rand(1, 21, generator=g),
+    }
     policy.reset()
     return policy.select_action(obs, generator=torch.Generator().manual_seed(2))
 

@@ -126,13 +126,29 @@ def test_afar_trains_with_lerobot_use_amp(points_dataset, tmp_path):
     """`--policy.use_amp=true`: lerobot-train runs the step under bf16 autocast (the config's `dtype`; on the
     CPU as on CUDA) and the relational terms stay finite (they compute distances in fp32)."""
     out = tmp_path / "run"
-    proc = _run(_cli("lerobot-train", "lerobot.scripts.lerobot_train") + [
-        "--policy.type=afar", "--policy.preset=cpu_fast", "--policy.points_per_step=32", "--policy.device=cpu",
-        "--policy.push_to_hub=false", "--policy.use_amp=true", "--policy.scheduler_warmup_steps=1",
-        "--dataset.repo_id=tester/bavo_tiny_points",
-        f"--dataset.root={points_dataset}", "--num_workers=0", "--batch_size=4", "--steps=2", "--save_freq=2",
-        "--log_freq=1", f"--output_dir={out}", "--wandb.enable=false", "--seed=3",
-    ], tmp_path)
+    proc = _run(
+        _cli("lerobot-train", "lerobot.scripts.lerobot_train")
+        + [
+            "--policy.type=afar",
+            "--policy.preset=cpu_fast",
+            "--policy.points_per_step=32",
+            "--policy.device=cpu",
+            "--policy.push_to_hub=false",
+            "--policy.use_amp=true",
+            "--policy.scheduler_warmup_steps=1",
+            "--dataset.repo_id=tester/bavo_tiny_points",
+            f"--dataset.root={points_dataset}",
+            "--num_workers=0",
+            "--batch_size=4",
+            "--steps=2",
+            "--save_freq=2",
+            "--log_freq=1",
+            f"--output_dir={out}",
+            "--wandb.enable=false",
+            "--seed=3",
+        ],
+        tmp_path,
+    )
     losses = re.findall(r"\bloss_evo:(\S+)", proc.stdout + proc.stderr)
     assert len(losses) == 2 and all(math.isfinite(float(v)) for v in losses), losses
     saved = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())

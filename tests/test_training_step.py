@@ -1,10 +1,10 @@
 """The training step (issue 28): the same losses and gradients as the step before its speed-ups.
 
-`training_step_reference.json` holds, for each case below, the loss terms and per-parameter gradient checksums of
-one fp32 CPU training step computed by the code at commit 729528a (before the step was reworked). The cases pin
-the random draws (seeded), give every zero-initialised layer random weights (else most gradients are exactly 0
-and compare trivially) and make the EMA teacher differ from the online network. To write the file again (only
-when the training objective changes on purpose): `python tests/test_training_step.py --write`.
+`training_step_reference.json` holds, for each case below, the loss terms and per-parameter gradient checksums
+of one fp32 CPU training step computed by the code at commit 729528a (before the step was reworked). The cases
+pin the random draws (seeded), give every zero-initialised layer random weights (else most gradients are
+exactly 0 and compare trivially) and make the EMA teacher differ from the online network. To write the file
+again (only when the training objective changes on purpose): `python tests/test_training_step.py --write`.
 """
 
 from __future__ import annotations
@@ -39,7 +39,10 @@ CASES: dict[str, tuple[str, dict, dict]] = {
     "maniflow_padding_mask": ("maniflow", {"do_mask_loss_for_padding": True}, {"pad": True}),
     "afar": ("afar", {}, {}),
     "afar_invalid_samples_anchor_subset_fps_prefix": (
-        "afar", {"relation_num_points": 12, "points_per_step": 24}, {"invalid": (1, 4), "flat_teacher": True}),
+        "afar",
+        {"relation_num_points": 12, "points_per_step": 24},
+        {"invalid": (1, 4), "flat_teacher": True},
+    ),
     "afar_occluder_dropout": ("afar", {"occluder_dropout": 0.5}, {"occluder": True, "flat_teacher": True}),
     "afar_current_relation_only": ("afar", {"use_future_evolution_loss": False}, {}),
     "afar_no_fusion": ("afar", {"use_fusion": False}, {}),
@@ -58,7 +61,9 @@ def make_policy(kind: str, overrides: dict) -> ManiFlowPolicy:
     torch.manual_seed(0)
     inputs, outputs = features(teacher=kind == "afar")
     if kind == "afar":
-        policy = AfarPolicy(AfarConfig(input_features=inputs, output_features=outputs, **{**TINY_AFAR, **overrides}))
+        policy = AfarPolicy(
+            AfarConfig(input_features=inputs, output_features=outputs, **{**TINY_AFAR, **overrides})
+        )
     else:
         policy = ManiFlowPolicy(ManiFlowConfig(input_features=inputs, output_features=outputs,
                                                **{**TINY, **overrides}))
@@ -72,8 +77,15 @@ def make_policy(kind: str, overrides: dict) -> ManiFlowPolicy:
     return policy.train()
 
 
-def make_batch(kind: str, b: int = 8, to: int = 2, pad: bool = False, invalid: tuple = (), flat_teacher: bool = False,
-               occluder: bool = False) -> dict[str, torch.Tensor]:
+def make_batch(
+    kind: str,
+    b: int = 8,
+    to: int = 2,
+    pad: bool = False,
+    invalid: tuple = (),
+    flat_teacher: bool = False,
+    occluder: bool = False,
+) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(2)
     batch = {PC: torch.rand(b, to, N_POINTS * 6, generator=g) * 2 - 1,
              STATE: torch.rand(b, to, STATE_DIM, generator=g) * 2 - 1,
@@ -95,7 +107,8 @@ def make_batch(kind: str, b: int = 8, to: int = 2, pad: bool = False, invalid: t
 
 
 def training_step(name: str) -> dict:
-    """One fp32 step of case `name`: loss terms and, per trained parameter, (sum, norm, projection) of its grad."""
+    """One fp32 step of case `name`: loss terms and, per trained parameter, (sum, norm, projection) of its
+    grad."""
     kind, overrides, batch_options = CASES[name]
     policy = make_policy(kind, overrides)
     batch = make_batch(kind, **batch_options)
@@ -143,8 +156,8 @@ def test_loss_and_gradients_equal_the_reference_step(name):
 
 @pytest.mark.parametrize("dropout", [0.0, 0.3])
 def test_cross_attention_to_the_memory_equals_attention_to_its_keys_and_values(dropout, monkeypatch):
-    """`CrossAttention.attend_memory` (training) against SDPA on explicit keys and values (inference), with the
-    same attention-dropout mask."""
+    """`CrossAttention.attend_memory` (training) against SDPA on explicit keys and values (inference), with
+    the same attention-dropout mask."""
     import torch.nn.functional as F  # noqa: N812
 
     from lerobot_bavo.policies.maniflow.modeling_maniflow import CrossAttention
@@ -152,7 +165,8 @@ def test_cross_attention_to_the_memory_equals_attention_to_its_keys_and_values(d
     torch.manual_seed(0)
     attn = CrossAttention(dim=24, heads=3, dropout=dropout, memory_dim=20).train()
     with torch.no_grad():
-        attn.kv_proj.bias.normal_()  # biases matter: b_k shifts no score, b_v is weighted by the kept attention
+        # biases matter: b_k shifts no score, b_v is weighted by the kept attention
+        attn.kv_proj.bias.normal_()
     x, memory = torch.randn(5, 4, 24), torch.randn(5, 7, 20)
     mask = (torch.rand(5, 3, 4, 7) > dropout).float() / (1 - dropout)  # one dropout draw, used by both
     monkeypatch.setattr(F, "dropout", lambda a, p, *args, **kwargs: a * mask.view(a.shape))
@@ -166,7 +180,8 @@ def test_cross_attention_to_the_memory_equals_attention_to_its_keys_and_values(d
         torch.testing.assert_close(got, attn.eval()(x, attn.kv(memory)), rtol=1e-5, atol=1e-6)
 
 
-# ---- The step's mechanics: no host reads, LeRobot's logging, optimiser, mixed precision, compilation -------------
+# ---- The step's mechanics: no host reads, LeRobot's logging, optimiser, mixed precision, compilation
+# -------------
 
 
 @pytest.fixture
@@ -194,8 +209,8 @@ def host_reads(monkeypatch):
 @pytest.mark.parametrize("name", ["maniflow_padding_mask", "afar_invalid_samples_anchor_subset_fps_prefix",
                                   "afar_occluder_dropout"])
 def test_a_training_step_reads_the_device_once(name, host_reads):
-    """Each host read inside a CUDA step waits for the GPU to run everything queued (issue 28): forward, backward
-    and the EMA update read only the logged values, all at once at the end of the forward pass."""
+    """Each host read inside a CUDA step waits for the GPU to run everything queued (issue 28): forward,
+    backward and the EMA update read only the logged values, all at once at the end of the forward pass."""
     kind, overrides, batch_options = CASES[name]
     policy = make_policy(kind, overrides)
     batch = make_batch(kind, **batch_options)
@@ -218,9 +233,9 @@ def test_nonfinite_teacher_targets_raise():
 
 
 class CpuAccelerator:
-    """What LeRobot's `update_policy` uses of `accelerate.Accelerator`, on the CPU, with autocast as Accelerate
-    sets it up for `mixed_precision` (Accelerate's state is one per process: it cannot switch precision between
-    tests)."""
+    """What LeRobot's `update_policy` uses of `accelerate.Accelerator`, on the CPU, with autocast as
+    Accelerate sets it up for `mixed_precision` (Accelerate's state is one per process: it cannot switch
+    precision between tests)."""
 
     def __init__(self, mixed_precision: str):
         self.dtype = {"no": None, "bf16": torch.bfloat16}[mixed_precision]
@@ -255,8 +270,15 @@ def lerobot_step(policy, batch, mixed_precision: str = "no") -> dict:
 def test_lerobot_update_policy_logs_every_loss_term():
     policy = make_policy("afar", {"relation_num_points": 12})
     logged = lerobot_step(policy, make_batch("afar", invalid=(1,)))
-    assert {"loss_fm", "loss_ct", "loss_maniflow", "loss_cur", "loss_evo", "teacher_valid", "fusion_gate_abs"} <= set(
-        logged)
+    assert {
+        "loss_fm",
+        "loss_ct",
+        "loss_maniflow",
+        "loss_cur",
+        "loss_evo",
+        "teacher_valid",
+        "fusion_gate_abs",
+    } <= set(logged)
     assert logged["teacher_valid"] == 7 and logged["loss"] > 0 and int(policy.ema_step) == 1
 
 
@@ -271,7 +293,8 @@ def test_training_preset_optimizer_is_fused_adamw_with_adamw_updates():
 
     policy = make_policy("afar", {})
     opt_cfg = policy.config.get_optimizer_preset()
-    encoded = draccus.encode(TrainConfig(opt_cfg))  # saved with a checkpoint's train config, read back on resume
+    # saved with a checkpoint's train config, read back on resume
+    encoded = draccus.encode(TrainConfig(opt_cfg))
     assert encoded["optimizer"]["type"] == "adamw_fused"
     assert draccus.decode(TrainConfig, encoded).optimizer == opt_cfg
     fused = opt_cfg.build(policy.get_optim_params())
@@ -279,8 +302,14 @@ def test_training_preset_optimizer_is_fused_adamw_with_adamw_updates():
     # torch's plain AdamW on copies of the parameters, fed the same gradients: the same updates
     groups = policy.get_optim_params()
     copies = {id(p): torch.nn.Parameter(p.detach().clone()) for g in groups for p in g["params"]}
-    plain = torch.optim.AdamW([{**g, "params": [copies[id(p)] for p in g["params"]]} for g in groups], lr=opt_cfg.lr,
-                              betas=opt_cfg.betas, eps=opt_cfg.eps, weight_decay=opt_cfg.weight_decay, foreach=False)
+    plain = torch.optim.AdamW(
+        [{**g, "params": [copies[id(p)] for p in g["params"]]} for g in groups],
+        lr=opt_cfg.lr,
+        betas=opt_cfg.betas,
+        eps=opt_cfg.eps,
+        weight_decay=opt_cfg.weight_decay,
+        foreach=False,
+    )
     batch = make_batch("afar")
     for seed in (5, 6, 7):
         torch.manual_seed(seed)
@@ -310,7 +339,8 @@ def test_use_amp_is_bf16_autocast_and_trains_on_cpu():
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["maniflow", "afar"])
 def test_compile_gives_the_eager_step(kind):
-    """`--policy.compile=true`: same losses and gradients as eager (compilation takes ~1 min on 2 CPU cores)."""
+    """`--policy.compile=true`: same losses and gradients as eager (compilation takes ~1 min on 2 CPU
+    cores)."""
     name = {"maniflow": "maniflow", "afar": "afar_invalid_samples_anchor_subset_fps_prefix"}[kind]
     _, overrides, batch_options = CASES[name]
     eager, compiled = make_policy(kind, overrides), make_policy(kind, {**overrides, "compile": True})

@@ -176,7 +176,8 @@ def test_accumulator_rejects_skipped_steps_and_missing_values():
 
 
 def test_wilson_interval_by_hand():
-    """95 % Wilson interval: 0 of n has upper bound z^2 / (n + z^2); n of n the mirror image; 19 of 40 by hand."""
+    """95 % Wilson interval: 0 of n has upper bound z^2 / (n + z^2); n of n the mirror image; 19 of 40 by
+    hand."""
     from lerobot_bavo.eval.metrics import wilson_interval
 
     z2 = 1.959964 ** 2
