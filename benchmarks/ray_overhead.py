@@ -44,7 +44,7 @@ def bench_env() -> dict:
 
 def ray_cli(*args: str) -> None:
     """`ray ARGS...` with the workers' environment (a standing Ray's workers inherit it from its raylet), at
-    nice 0 as the README's cluster recipe starts them."""
+    nice 0 as the cluster recipe in docs/benchmark.md starts them."""
     exe = Path(sys.executable).with_name("ray")
     env = dict(bench_env(), BAVO_LIGHT_IMPORT="1", RAY_worker_niceness="0", **CLUSTER_ENV)
     proc = subprocess.run([str(exe), *args], env=env, capture_output=True, text=True)

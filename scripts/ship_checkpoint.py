@@ -172,7 +172,7 @@ Reproduce: {'; '.join(reproduce)}.
   `huggingface-cli upload <user>/afar_bavo_cube_handoff checkpoints/afar_cube_handoff .`;
   load with `--policy.path=<user>/afar_bavo_cube_handoff`.
 - Safety: a checkpoint's processor files name Python classes that LeRobot imports; our loaders accept
-  only LeRobot's and this package's processor steps (see the README's Safety paragraph).
+  only LeRobot's and this package's processor steps (see docs/checkpoints.md).
 """
 
 

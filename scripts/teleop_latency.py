@@ -1,4 +1,4 @@
-"""Key-press-to-next-frame latency of `bavo-teleop`, measured in the page, and the README screenshot.
+"""Key-press-to-next-frame latency of `bavo-teleop`, measured in the page, and the docs/teleop.md screenshot.
 
 Starts `bavo-teleop` (default observation settings: 240 x 320 active image, 256 points) on
 127.0.0.1 with a throw-away dataset, opens the page in headless Chromium (Debian's `chromium`,

@@ -4,7 +4,7 @@
 # checkpointed every SAVE_FREQ steps. On a GPU use the same commands with DEVICE=cuda (and, for the paper's
 # scale, PRESET=paper STEPS=100000).
 #
-#   bash scripts/train_cube_handoff.sh collect      # 100 Stage demonstrations (bavo-collect), ~12-30 min
+#   bash scripts/train_cube_handoff.sh collect      # 100 Stage demonstrations (bavo-collect), 3.6-5.1 min on an idle 2-core machine
 #   bash scripts/train_cube_handoff.sh views        # the `points` and `state` training views
 #   bash scripts/train_cube_handoff.sh state        # rung 1: privileged-state ManiFlow
 #   bash scripts/train_cube_handoff.sh maniflow     # rung 2: point-cloud ManiFlow
