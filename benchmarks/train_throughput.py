@@ -79,7 +79,7 @@ def build(args, preset: str, batch_size: int, fast: bool):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
     from lerobot.policies.factory import make_policy, make_policy_config, make_pre_post_processors
 
-    import lerobot_bavo  # noqa: F401  (registers the policies)
+    import lerobot_bavo.policies  # noqa: F401  (registers the policies)
     from lerobot_bavo.datasets.fast import use_in_memory_reader
 
     cfg = make_policy_config(args.policy, preset=preset, device="cpu")
@@ -167,6 +167,7 @@ def serve_steps(args) -> None:
     from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
 
     import lerobot_bavo
+    import lerobot_bavo.policies  # noqa: F401  (registers the policies; `import lerobot_bavo` alone does not)
     from lerobot_bavo.datasets.fast import use_in_memory_reader
 
     torch.set_num_threads(args.threads)

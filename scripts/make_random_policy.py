@@ -148,7 +148,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="action spread around the home pose, as a fraction of each joint's range")
     args = parser.parse_args(argv)
 
-    import lerobot_bavo  # noqa: F401  (registers the "bavo" env type)
+    from lerobot_bavo import register_lerobot_types
+
+    register_lerobot_types()  # the "bavo" env type (and the policy types) for LeRobot's factories
 
     out = make_random_policy(
         args.output_dir, args.policy_type, args.task, args.image_height, args.image_width, args.n_points,

@@ -19,7 +19,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env, make_env_config
 from lerobot.envs.utils import env_to_policy_features, preprocess_observation
 
-import lerobot_bavo  # noqa: F401  (registers the gym ids and the "bavo" env type)
+import lerobot_bavo  # noqa: F401  (registers the gym ids; envs.configs below registers the "bavo" type)
 from lerobot_bavo.envs import gym_id, register_envs
 from lerobot_bavo.envs.conditions import CONDITIONS
 from lerobot_bavo.envs.configs import BavoEnvConfig
