@@ -67,7 +67,9 @@ def parse_args() -> argparse.Namespace:
     step.add_argument("--use-amp", action="store_true", help="--policy.use_amp=true (bf16 autocast on CUDA)")
     step.add_argument("--new-policy-arg", action="append", default=[], metavar="FIELD=VALUE",
                       help="a config field set on the new path only (e.g. compile=true); repeatable")
-    step.add_argument("--profile-steps", type=int, default=5, help="CUDA: steps profiled for the busy fraction")
+    step.add_argument(
+        "--profile-steps", type=int, default=5, help="CUDA: steps profiled for the busy fraction"
+    )
     step.add_argument("--worker", default=None, help=argparse.SUPPRESS)  # internal: serve steps of one path
     return p.parse_args()
 
@@ -86,7 +88,9 @@ def build(args, preset: str, batch_size: int, fast: bool):
     meta = LeRobotDatasetMetadata(args.repo_id, root=args.root)
     ds = LeRobotDataset(args.repo_id, root=args.root, delta_timestamps=resolve_delta_timestamps(cfg, meta))
     if fast and not use_in_memory_reader(ds):
-        raise SystemExit(f"{args.root} cannot be served from memory (see lerobot_bavo.datasets.fast.supports)")
+        raise SystemExit(
+            f"{args.root} cannot be served from memory (see lerobot_bavo.datasets.fast.supports)"
+        )
     policy = make_policy(cfg, ds_meta=ds.meta)
     policy.train()
     pre, _ = make_pre_post_processors(cfg, dataset_stats=ds.meta.stats)
@@ -120,7 +124,8 @@ def loading_ms(ds, n: int) -> float:
     return (time.perf_counter() - t0) / n * 1e3
 
 
-# ---- Step comparison (--baseline-commit) ------------------------------------------------------------------------
+# ---- Step comparison (--baseline-commit)
+# ------------------------------------------------------------------------
 
 
 def policy_overrides(pairs: list[str]) -> dict[str, object]:
@@ -153,8 +158,8 @@ def busy_fraction(intervals: list[tuple[float, float]], wall: float) -> float:
 
 
 def serve_steps(args) -> None:
-    """Worker: build one path, then answer "step" with the seconds one training step took, "profile K" with the
-    GPU busy fraction over K steps, and "quit"."""
+    """Worker: build one path, then answer "step" with the seconds one training step took, "profile K" with
+    the GPU busy fraction over K steps, and "quit"."""
     import json
     import sys
 
@@ -173,16 +178,21 @@ def serve_steps(args) -> None:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     overrides = policy_overrides(args.new_policy_arg) if args.worker == "new" else {}
-    cfg = make_policy_config(args.policy, preset=args.preset, device=args.device, use_amp=args.use_amp, **overrides)
+    cfg = make_policy_config(
+        args.policy, preset=args.preset, device=args.device, use_amp=args.use_amp, **overrides
+    )
     meta = LeRobotDatasetMetadata(args.repo_id, root=args.root)
     ds = LeRobotDataset(args.repo_id, root=args.root, delta_timestamps=resolve_delta_timestamps(cfg, meta))
     if not use_in_memory_reader(ds):
-        raise SystemExit(f"{args.root} cannot be served from memory (see lerobot_bavo.datasets.fast.supports)")
+        raise SystemExit(
+            f"{args.root} cannot be served from memory (see lerobot_bavo.datasets.fast.supports)"
+        )
     policy = make_policy(cfg, ds_meta=ds.meta)
     pre, _ = make_pre_post_processors(cfg, dataset_stats=ds.meta.stats)
     opt_cfg = cfg.get_optimizer_preset()
     opt = opt_cfg.build(policy.get_optim_params())
-    # lerobot-train's choice of autocast: the config's `dtype` when it has one, else `use_amp` with torch's default.
+    # lerobot-train's choice of autocast: the config's `dtype` when it has one, else `use_amp` with torch's
+    # default.
     dtype = getattr(cfg, "dtype", None)
     mixed = {"bfloat16": "bf16", "float16": "fp16", "float32": "no"}.get(dtype) if dtype else (
         {torch.bfloat16: "bf16", torch.float16: "fp16"}[torch.get_autocast_dtype(args.device)] if cfg.use_amp
@@ -212,9 +222,18 @@ def serve_steps(args) -> None:
         return time.perf_counter() - t0, time.process_time() - c0
 
     n_params = sum(p.numel() for p in policy.model.parameters())
-    print(json.dumps({"ready": True, "code": lerobot_bavo.__file__, "params": n_params, "mixed_precision": mixed,
-                      "optimizer": type(opt).__name__ + (" fused" if opt.defaults.get("fused") else "")}),
-          flush=True)
+    print(
+        json.dumps(
+            {
+                "ready": True,
+                "code": lerobot_bavo.__file__,
+                "params": n_params,
+                "mixed_precision": mixed,
+                "optimizer": type(opt).__name__ + (" fused" if opt.defaults.get("fused") else ""),
+            }
+        ),
+        flush=True,
+    )
     for line in sys.stdin:
         cmd = line.split()
         if cmd[0] == "step":
@@ -240,7 +259,8 @@ def serve_steps(args) -> None:
 
 
 def baseline_code(commit: str, into: str) -> str:
-    """`lerobot_bavo/` of `commit` extracted under `into`; returns `into` (a folder to put first on sys.path)."""
+    """`lerobot_bavo/` of `commit` extracted under `into`; returns `into` (a folder to put first on
+    sys.path)."""
     import subprocess
     import tarfile
     from io import BytesIO
@@ -272,20 +292,38 @@ def compare_steps(args) -> None:
 
     head = git("rev-parse", "--short", "HEAD") or "no git history"
     dirty = git("status", "--porcelain", "lerobot_bavo")
-    print(f"load average at start: {os.getloadavg()[0]:.2f}; torch threads {args.threads}; device {args.device}; "
-          f"policy {args.policy}, preset {args.preset}, batch {args.batch}, use_amp {args.use_amp}")
-    print(f"  old: lerobot_bavo/ of {args.baseline_commit or args.baseline_dir}; new: the working tree ({head}"
-          f"{', with uncommitted changes' if dirty else ''}) {' '.join(args.new_policy_arg)}")
+    print(
+        f"load average at start: {os.getloadavg()[0]:.2f}; torch threads {args.threads}; device "
+        f"{args.device}; "
+        f"policy {args.policy}, preset {args.preset}, batch {args.batch}, use_amp {args.use_amp}"
+    )
+    print(
+        f"  old: lerobot_bavo/ of {args.baseline_commit or args.baseline_dir}; new: the working tree ({head}"
+        f"{', with uncommitted changes' if dirty else ''}) {' '.join(args.new_policy_arg)}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
-        old = str(Path(args.baseline_dir).resolve()) if args.baseline_dir else baseline_code(args.baseline_commit, tmp)
+        old = (
+            str(Path(args.baseline_dir).resolve())
+            if args.baseline_dir
+            else baseline_code(args.baseline_commit, tmp)
+        )
         code = {"old": old, "new": str(repo)}
         argv = sys.argv[1:]
         workers = {}
         for name in ("old", "new"):
             # first on the path, before whatever the environment has there (on the GPU machine: the wheels)
-            env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [code[name], os.environ.get("PYTHONPATH")])))
-            workers[name] = subprocess.Popen([sys.executable, __file__, *argv, "--worker", name], env=env,
-                                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+            env = dict(
+                os.environ,
+                PYTHONPATH=os.pathsep.join(filter(None, [code[name], os.environ.get("PYTHONPATH")])),
+            )
+            workers[name] = subprocess.Popen(
+                [sys.executable, __file__, *argv, "--worker", name],
+                env=env,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                bufsize=1,
+            )
 
         def ask(name: str, cmd: str) -> dict:
             w = workers[name]
@@ -313,7 +351,8 @@ def compare_steps(args) -> None:
         times = {name: [] for name in workers}
         cpu_times = {name: [] for name in workers}
         for i in range(args.warmup + args.steps):
-            order = ("old", "new") if i % 2 == 0 else ("new", "old")  # neither always runs right after the other
+            # neither always runs right after the other
+            order = ("old", "new") if i % 2 == 0 else ("new", "old")
             for name in order:
                 answer = ask(name, "step")
                 if i >= args.warmup:
@@ -327,16 +366,22 @@ def compare_steps(args) -> None:
             worker.stdin.flush()
             worker.wait(timeout=60)
 
-    print(f"\nTraining step (load + normalise + LeRobot's update_policy), median of {args.steps} alternated steps "
-          f"(load average at end {os.getloadavg()[0]:.2f}):")
+    print(
+        f"\nTraining step (load + normalise + LeRobot's update_policy), median of {args.steps} alternated "
+        "steps "
+        f"(load average at end {os.getloadavg()[0]:.2f}):"
+    )
     rate = {}
     for name, ts in times.items():
         med = statistics.median(ts)
         q1, q3 = statistics.quantiles(ts, n=4)[0], statistics.quantiles(ts, n=4)[2]
         rate[name] = args.batch / med
         extra = f", GPU busy {busy[name]:.0%}" if busy.get(name) is not None else ""
-        print(f"  {name}: {med * 1e3:8.1f} ms per step of {args.batch} (quartiles {q1 * 1e3:.1f}-{q3 * 1e3:.1f}), "
-              f"{rate[name]:7.1f} samples/s, CPU time {statistics.median(cpu_times[name]) * 1e3:.1f} ms{extra}")
+        print(
+            f"  {name}: {med * 1e3:8.1f} ms per step of {args.batch} (quartiles "
+            f"{q1 * 1e3:.1f}-{q3 * 1e3:.1f}), "
+            f"{rate[name]:7.1f} samples/s, CPU time {statistics.median(cpu_times[name]) * 1e3:.1f} ms{extra}"
+        )
     pairs = [o / n for o, n in zip(times["old"], times["new"], strict=True)]
     cpu_ratio = statistics.median(cpu_times["old"]) / statistics.median(cpu_times["new"])
     print(f"  ratio new / old: {rate['new'] / rate['old']:.2f}x samples/s (median of the per-round ratios "
@@ -353,7 +398,9 @@ def main() -> None:
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
-    print(f"load average at start: {os.getloadavg()[0]:.2f}; torch threads {args.threads}; policy {args.policy}")
+    print(
+        f"load average at start: {os.getloadavg()[0]:.2f}; torch threads {args.threads}; policy {args.policy}"
+    )
     paths = {
         "today": (args.today_preset, args.today_batch, False),
         "new": (args.new_preset, args.new_batch, True),
@@ -380,7 +427,10 @@ def main() -> None:
     print(f"  ratio new / today: {ratio:.1f}x samples/s (target >= 10x: {'OK' if ratio >= 10 else 'MISSED'})")
 
     torch.set_num_threads(1)
-    print(f"\nSample loading alone (one dataset item with the policy's delta_timestamps), {args.load_samples} items:")
+    print(
+        f"\nSample loading alone (one dataset item with the policy's delta_timestamps), {args.load_samples} "
+        "items:"
+    )
     for name in paths:
         print(f"  {name:5s}: {loading_ms(built[name][0], args.load_samples):7.2f} ms per sample")
 

@@ -18,7 +18,8 @@ from torch import Tensor
 
 
 def points_last_order(labels: Tensor, chosen: Tensor) -> Tensor:
-    """Per-cloud point order (..., N) that keeps unlabelled points first, in their stored order, where `chosen`.
+    """Per-cloud point order (..., N) that keeps unlabelled points first, in their stored order, where
+    `chosen`.
 
     Args:
         labels: (B, ..., N) bool, True for the points to move back.
@@ -33,7 +34,8 @@ def reorder_points(x: Tensor, order: Tensor) -> Tensor:
 
     Args:
         x: (B, [To,] N * c) flat per-point features (the dataset layout) or (B, [To,] N).
-        order: (B, To, N) from `points_last_order`; a feature without the time axis uses the last step's order.
+        order: (B, To, N) from `points_last_order`; a feature without the time axis uses the last step's
+        order.
     """
     n = order.shape[-1]
     if x.ndim == order.ndim - 1:  # no time axis

@@ -1,9 +1,10 @@
 """A-FAR: ManiFlow + WorldQueryFormer future tokens + zero-init gated fusion + relational distillation.
 
 Paper Sec. 4.3-4.4 and Appendix B. The ManiFlow encoder gives current point tokens H_t (B, N, 128) (the last
-observation step); the WorldQueryFormer predicts point-aligned future tokens H^F = F(H_t, s_t); the fused tokens
-H_cond = H_t + tanh(gamma) * W_F H^F replace H_t in the DiT-X context (earlier observation steps are unchanged).
-gamma starts at 0, so at initialisation A-FAR's context, and hence its actions, equal ManiFlow's exactly.
+observation step); the WorldQueryFormer predicts point-aligned future tokens H^F = F(H_t, s_t); the fused
+tokens H_cond = H_t + tanh(gamma) * W_F H^F replace H_t in the DiT-X context (earlier observation steps are
+unchanged). gamma starts at 0, so at initialisation A-FAR's context, and hence its actions, equal ManiFlow's
+exactly.
 
 Training loss: L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo), with the teacher relations computed from the
 cached teacher features in the batch (`lerobot_bavo.teacher.relations`).
@@ -45,7 +46,11 @@ class WorldQueryBlock(nn.Module):
         self.norm3 = nn.LayerNorm(dim)
         hidden = int(dim * ffn_ratio)
         self.ffn = nn.Sequential(
-            nn.Linear(dim, hidden), nn.GELU(), nn.Dropout(dropout), nn.Linear(hidden, dim), nn.Dropout(dropout)
+            nn.Linear(dim, hidden),
+            nn.GELU(),
+            nn.Dropout(dropout),
+            nn.Linear(hidden, dim),
+            nn.Dropout(dropout),
         )
 
     def forward(self, q: Tensor, memory: Tensor) -> Tensor:
@@ -56,7 +61,8 @@ class WorldQueryBlock(nn.Module):
 
 
 class WorldQueryFormer(nn.Module):
-    """Predicts point-aligned future tokens H^F (B, N, hidden) from H_t (B, N, Dp) and the encoded state (B, Ds).
+    """Predicts point-aligned future tokens H^F (B, N, hidden) from H_t (B, N, Dp) and the encoded state (B,
+    Ds).
 
     Future queries start as Linear(H_t) + Linear(state feature); H_t itself is the cross-attention memory.
     """
@@ -92,8 +98,8 @@ class AfarModel(ManiFlowModel):
     def observation_tokens(
         self, point_cloud: Tensor, state: Tensor, need_future: bool = False
     ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        """Point tokens (the last step's fused) and state features of the DiT-X context, and {"h_cur": H_t (B, N,
-        Dp), "h_fut": H^F (B, N, d) when computed}."""
+        """Point tokens (the last step's fused) and state features of the DiT-X context, and {"h_cur": H_t (B,
+        N, Dp), "h_fut": H^F (B, N, d) when computed}."""
         cfg: AfarConfig = self.config
         point_feats, state_feats = self.encode_observations(point_cloud, state)  # (B,To,N,Dp), (B,To,Ds)
         h_cur = point_feats[:, -1]
@@ -109,9 +115,7 @@ class AfarModel(ManiFlowModel):
 
 def _teacher_tokens(x: Tensor, batch_size: int, num_points: int, key: str) -> Tensor:
     """Teacher features as (B, N_q, d_T) from (B, N_q, d_T), (B, To, N_q, d_T) or flattened variants."""
-    if x.ndim == 4:  # (B, To, N, d): take the current (last) step
-        x = x[:, -1]
-    elif x.ndim == 3 and x.shape[1] != num_points:  # (B, To, N * d)
+    if x.ndim == 4 or x.ndim == 3 and x.shape[1] != num_points:  # (B, To, N, d): take the current (last) step
         x = x[:, -1]
     if x.ndim == 2:  # (B, N * d)
         if x.shape[1] % num_points:
@@ -151,12 +155,16 @@ class AfarPolicy(ManiFlowPolicy):
         rest = [p for p in self.model.parameters() if p is not gate]
         return [
             {"params": rest},
-            {"params": [gate], "weight_decay": 0.0, "lr": self.config.optimizer_lr * self.config.fusion_gate_lr_scale},
+            {
+                "params": [gate],
+                "weight_decay": 0.0,
+                "lr": self.config.optimizer_lr * self.config.fusion_gate_lr_scale,
+            },
         ]
 
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
-        """L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo); logging dict of floats (read from the device once,
-        at the end, with the teacher-finiteness checks: `read_logged_values`).
+        """L = L_ManiFlow + lambda_rel / 2 * (L_cur + L_evo); logging dict of floats (read from the device
+        once, at the end, with the teacher-finiteness checks: `read_logged_values`).
 
         In training mode the teacher keys are required when a relational loss is enabled; in eval mode (e.g.
         validation without teacher data) the relational terms are skipped when the keys are absent.
@@ -198,10 +206,11 @@ class AfarPolicy(ManiFlowPolicy):
     ) -> tuple[Tensor, Tensor, Tensor | int]:
         """(L_cur, L_evo, number of valid samples) on the current step's tokens; disabled terms are 0.
 
-        Each term is the mean of the per-sample terms over the valid samples (`observation.teacher.valid`), 0 when
-        there are none: computed for every sample and masked, so that the batch's shapes never depend on its
-        values (no device sync). The teacher targets must be finite: checked here when `checks` is None, else
-        the check is appended to `checks`, to be read with the step's logged values (`read_logged_values`).
+        Each term is the mean of the per-sample terms over the valid samples (`observation.teacher.valid`), 0
+        when there are none: computed for every sample and masked, so that the batch's shapes never depend on
+        its values (no device sync). The teacher targets must be finite: checked here when `checks` is None,
+        else the check is appended to `checks`, to be read with the step's logged values
+        (`read_logged_values`).
         """
         cfg: AfarConfig = self.config
         h_cur = aux["h_cur"]  # (B, M, Dp): the first M of the N points (`points_per_step`)
@@ -210,8 +219,10 @@ class AfarPolicy(ManiFlowPolicy):
         zf = _teacher_tokens(batch[TEACHER_ZF], b, n, TEACHER_ZF)[:, : h_cur.shape[1]]
         for key, z in ((TEACHER_Z0, z0), (TEACHER_ZF, zf)):
             finite = torch.isfinite(z).all()
-            message = (f"'{key}' holds NaN or inf in this batch: the dataset's teacher cache is broken (recompute "
-                       "it with lerobot_bavo.teacher, or train without the relational losses)")
+            message = (
+                f"'{key}' holds NaN or inf in this batch: the dataset's teacher cache is broken (recompute "
+                "it with lerobot_bavo.teacher, or train without the relational losses)"
+            )
             if checks is None:
                 if not bool(finite):
                     raise ValueError(message)
@@ -237,8 +248,9 @@ class AfarPolicy(ManiFlowPolicy):
             loss_evo = valid_mean(loss_evo, valid)
         else:  # L_cur only: no future tokens needed
             hn = F.normalize(h_cur, dim=-1)
-            loss_cur = valid_mean(weighted_l1(relation_matrix(hn, hn, eps=cfg.relation_eps) - r_t, per_sample=True),
-                                  valid)
+            loss_cur = valid_mean(
+                weighted_l1(relation_matrix(hn, hn, eps=cfg.relation_eps) - r_t, per_sample=True), valid
+            )
             loss_evo = zero
         return loss_cur, loss_evo, b if valid is None else valid.sum()
 

@@ -9,7 +9,6 @@ normaliser leaves them untouched and evaluation never needs them.
 from typing import Any
 
 import torch
-
 from lerobot.processor import PolicyAction, PolicyProcessorPipeline
 
 from ..maniflow.processor_maniflow import make_maniflow_pre_post_processors

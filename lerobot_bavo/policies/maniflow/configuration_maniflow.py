@@ -7,19 +7,20 @@ from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
 from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-# OBS_ENV_STATE: the privileged-state alternative to the point cloud, K object poses (POSE_CHANNELS = 7 each: xyz +
-# wxyz quaternion), one token per object; used by the first rung of the failure ladder
-# (docs/results/ladder_cube_handoff.md). Training-only targets ride along under TEACHER_PREFIX (see
-# `validate_features`).
-from lerobot_bavo.sim.constants import ACTION_DIM, ACTION_NAMES, GRIPPER_INDICES
 from lerobot_bavo.features import OBS_ENV_STATE, OBS_POINT_CLOUD, POSE_CHANNELS, TEACHER_PREFIX
 from lerobot_bavo.policies.optim import FusedAdamWConfig
 
+# OBS_ENV_STATE: the privileged-state alternative to the point cloud, K object poses (POSE_CHANNELS = 7 each:
+# xyz + wxyz quaternion), one token per object; used by the first rung of the failure ladder
+# (docs/results/ladder_cube_handoff.md). Training-only targets ride along under TEACHER_PREFIX (see
+# `validate_features`).
+from lerobot_bavo.sim.constants import ACTION_DIM, ACTION_NAMES, GRIPPER_INDICES
+
 # Size presets. `paper` is ManiFlow's DiT-X (768 wide, 12 layers, 8 heads; ~180 M parameters) with the
-# xyz+rgb PointNet (6->64->128->256->512->128). `cpu` keeps the PointNet and shrinks DiT-X to 192 wide x 3 layers
-# x 4 heads (~3.3 M parameters): on the project's 2-core machines a batch-32 training step takes ~0.7 s and one
-# action chunk at batch 1 on one thread ~10-14 ms with 1-2 flow steps (benchmarks/policy_speed.py; the cross-
-# attention keys/values of the 2 x 256 point tokens dominate both). See DESIGN.md "CPU budget".
+# xyz+rgb PointNet (6->64->128->256->512->128). `cpu` keeps the PointNet and shrinks DiT-X to 192 wide x 3
+# layers x 4 heads (~3.3 M parameters): on the project's 2-core machines a batch-32 training step takes ~0.7 s
+# and one action chunk at batch 1 on one thread ~10-14 ms with 1-2 flow steps (benchmarks/policy_speed.py; the
+# cross- attention keys/values of the 2 x 256 point tokens dominate both). See DESIGN.md "CPU budget".
 MANIFLOW_PRESETS: dict[str, dict] = {
     "paper": {
         "dit_hidden_dim": 768,
@@ -69,10 +70,10 @@ class ManiFlowConfig(PreTrainedConfig):
         - `observation.point_cloud` (N, C) with C = `point_channels` (6: xyz + rgb in [0, 1]; 3: xyz).
           The flat row-major layout (N * C,) of BAVO datasets is accepted too (the processor reshapes env
           observations to the trained layout; the model unflattens).
-        - or, when the input features have no point cloud, `observation.environment_state` (7 K,): the privileged
-          object poses (xyz + wxyz quaternion per object). Each object becomes one token through the same
-          per-token encoder (the privileged-state ManiFlow of the failure ladder: perfect perception, same
-          DiT-X and flow objective).
+        - or, when the input features have no point cloud, `observation.environment_state` (7 K,): the
+          privileged object poses (xyz + wxyz quaternion per object). Each object becomes one token through
+          the same per-token encoder (the privileged-state ManiFlow of the failure ladder: perfect perception,
+          same DiT-X and flow objective).
         - `observation.state` (S,), required.
         - `action` (A,), required output.
         - Keys under `observation.teacher.*` are training-only targets (used by A-FAR) and are removed from
@@ -81,15 +82,16 @@ class ManiFlowConfig(PreTrainedConfig):
         - The frame of the point cloud (robot base by default, camera frame for the ablation) is a data/env
           option; the policy is agnostic to it.
 
-    Normalisation: ManiFlow's `limits` mode maps every last-axis channel to [-1, 1]; LeRobot's MIN_MAX does the
-    same. LeRobot stores stats of a (N, 6) feature per channel, shape (6,), which broadcast over (B, To, N, 6),
-    so the default normaliser handles the point cloud (it is a STATE-typed feature). A flat (N * 6,) feature
-    has element-wise (N * 6,) stats: they must be per-channel stats tiled N times (as BAVO datasets write them,
-    `lerobot_bavo.datasets.schema.tile_channel_stats`), otherwise each point slot gets its own scale.
-    Difference: ManiFlow maps channels whose range is < 1e-4 to 0, LeRobot divides by eps and maps them to -1.
+    Normalisation: ManiFlow's `limits` mode maps every last-axis channel to [-1, 1]; LeRobot's MIN_MAX does
+    the same. LeRobot stores stats of a (N, 6) feature per channel, shape (6,), which broadcast over (B, To,
+    N, 6), so the default normaliser handles the point cloud (it is a STATE-typed feature). A flat (N * 6,)
+    feature has element-wise (N * 6,) stats: they must be per-channel stats tiled N times (as BAVO datasets
+    write them, `lerobot_bavo.datasets.schema.tile_channel_stats`), otherwise each point slot gets its own
+    scale. Difference: ManiFlow maps channels whose range is < 1e-4 to 0, LeRobot divides by eps and maps them
+    to -1.
 
-    Size presets: the architecture fields left at `None` are filled from `MANIFLOW_PRESETS[preset]`; fields set
-    explicitly (e.g. `--policy.dit_num_layers=2`) override the preset. `preset="paper"` is ManiFlow's size
+    Size presets: the architecture fields left at `None` are filled from `MANIFLOW_PRESETS[preset]`; fields
+    set explicitly (e.g. `--policy.dit_num_layers=2`) override the preset. `preset="paper"` is ManiFlow's size
     (GPU only, ~46 s per step on 2 CPU cores); `preset="cpu"` is 192 wide x 3 layers x 4 heads.
 
     Args:
@@ -117,9 +119,10 @@ class ManiFlowConfig(PreTrainedConfig):
         dit_num_layers: Number of DiT-X blocks; None means from the preset (paper 12, cpu 3).
         dit_num_heads: Attention heads per DiT-X block; None means from the preset (paper 8, cpu 4).
         dit_mlp_ratio: Hidden width of the block MLP relative to dit_hidden_dim (paper 4).
-        dropout: Dropout in DiT-X attention and MLPs; None means from the preset (paper and cpu 0.1, cpu_fast 0:
-            on CPU, attention dropout forces PyTorch's unfused attention and the Bernoulli masks cost ~30 % of a
-            training step, measured with torch.profiler).
+        dropout: Dropout in DiT-X attention and MLPs; None means from the preset (paper and cpu 0.1, cpu_fast
+        0:
+            on CPU, attention dropout forces PyTorch's unfused attention and the Bernoulli masks cost ~30 % of
+            a training step, measured with torch.profiler).
         time_freq_dim: Size of the sinusoidal embedding of t and of dt (paper 128; raw t in [0, 1]).
         time_embed_hidden_dim: Hidden width of the time MLP (sinusoid -> hidden -> Mish -> width); None means
             from the preset (paper 512, cpu 256).
@@ -128,29 +131,31 @@ class ManiFlowConfig(PreTrainedConfig):
             first M points are exactly the M-point FPS sample of the same view, and the point-aligned teacher
             features are cut the same way. None means from the preset (paper and cpu: 0; cpu_fast: 64).
         num_inference_steps: Euler steps from noise (t = 0) to data (t = 1) at inference. Default 10, as
-            ManiFlow's released scripts (its paper claims 1-2 steps thanks to the consistency objective). Measured
-            on the CPU-scale A-FAR of docs/results/ladder_cube_handoff.md (same checkpoint, Stage, 20 episodes):
-            2 steps SR 10 / TPS 53, 10 steps 35 / 75, 20 steps 45 / 75. The paper does not fix it. A
-            checkpoint's config.json keeps the value it was trained with (`--policy.num_inference_steps=N` in
-            lerobot-eval overrides it).
-        use_ema_for_inference: Predict actions with the EMA copy (ManiFlow's eval model). The EMA copy is always
+            ManiFlow's released scripts (its paper claims 1-2 steps thanks to the consistency objective).
+            Measured on the CPU-scale A-FAR of docs/results/ladder_cube_handoff.md (same checkpoint, Stage, 20
+            episodes): 2 steps SR 10 / TPS 53, 10 steps 35 / 75, 20 steps 45 / 75. The paper does not fix it.
+            A checkpoint's config.json keeps the value it was trained with (`--policy.num_inference_steps=N`
+            in lerobot-eval overrides it).
+        use_ema_for_inference: Predict actions with the EMA copy (ManiFlow's eval model). The EMA copy is
+        always
             kept, since it is the consistency teacher.
-        clip_actions: Clamp sampled chunks to [-1, 1], the range every MIN_MAX-normalised action of the dataset
-            lies in, before unnormalising (as Diffusion Policy's `clip_sample`). Why: a 1-2 step flow sample can
-            overshoot the data range (measured: gripper commands of -0.4 on a [0, 1] gripper), which no
+        clip_actions: Clamp sampled chunks to [-1, 1], the range every MIN_MAX-normalised action of the
+        dataset
+            lies in, before unnormalising (as Diffusion Policy's `clip_sample`). Why: a 1-2 step flow sample
+            can overshoot the data range (measured: gripper commands of -0.4 on a [0, 1] gripper), which no
             demonstration ever shows.
         binary_action_dims: Action dimensions executed as binary commands. None (default) follows the dataset:
-            BAVO's two gripper commands (`sim.constants.GRIPPER_INDICES`, 0 closed .. 1 open) when the dataset's
-            action names are BAVO's (or, with no names known, when the action is BAVO's 21-dim one), none
-            otherwise; the resolved value is saved with the checkpoint. At inference each of them is snapped to the
-            nearer end of its training range (normalised value > 0 -> +1, else -1: fully open or fully closed).
-            Why: the experts' gripper commands are open (1) until a grasp and then ramp to closed (0); a 1-2 step
-            flow sample drifts off 1 during the approach (measured: 0.9 to 0.4 while the arm is still 10 cm above
-            the cube), the half-closed gripper then shows in the state as the start of a grasp, and the policy
-            closes on the cube's top (15 of 20 privileged-state episodes stopped at M1). Snapping keeps the
-            gripper open until the sampled chunk commits to closing (privileged-state ManiFlow, same checkpoint,
-            20 episodes: Clean SR 15 % -> 90 %, Stage 10 % -> 100 %; docs/results/ladder_cube_handoff.md).
-            Needs MIN_MAX action normalisation;
+            BAVO's two gripper commands (`sim.constants.GRIPPER_INDICES`, 0 closed .. 1 open) when the
+            dataset's action names are BAVO's (or, with no names known, when the action is BAVO's 21-dim one),
+            none otherwise; the resolved value is saved with the checkpoint. At inference each of them is
+            snapped to the nearer end of its training range (normalised value > 0 -> +1, else -1: fully open
+            or fully closed). Why: the experts' gripper commands are open (1) until a grasp and then ramp to
+            closed (0); a 1-2 step flow sample drifts off 1 during the approach (measured: 0.9 to 0.4 while
+            the arm is still 10 cm above the cube), the half-closed gripper then shows in the state as the
+            start of a grasp, and the policy closes on the cube's top (15 of 20 privileged-state episodes
+            stopped at M1). Snapping keeps the gripper open until the sampled chunk commits to closing
+            (privileged-state ManiFlow, same checkpoint, 20 episodes: Clean SR 15 % -> 90 %, Stage 10 % -> 100
+            %; docs/results/ladder_cube_handoff.md). Needs MIN_MAX action normalisation;
             `--policy.binary_action_dims=[]` turns it off. Training is unchanged.
         ema_power: EMA warm-up power: decay at update k is clip(1 - (1 + k) ** -ema_power, 0, ema_max_decay).
         ema_max_decay: Upper bound of the EMA decay.
@@ -166,19 +171,19 @@ class ManiFlowConfig(PreTrainedConfig):
         optimizer_betas: AdamW betas.
         optimizer_eps: AdamW epsilon.
         optimizer_weight_decay: AdamW weight decay.
-        optimizer_grad_clip_norm: Gradient clipping used by lerobot-train; 0 disables it (ManiFlow clips none).
-        scheduler_warmup_steps: Linear warm-up steps of the cosine learning-rate schedule.
+        optimizer_grad_clip_norm: Gradient clipping used by lerobot-train; 0 disables it (ManiFlow clips
+        none). scheduler_warmup_steps: Linear warm-up steps of the cosine learning-rate schedule.
         occluder_dropout: Probability, per training sample, that the cloud's points on the benchmark occluder
-            are moved behind the points the policy reads (`policies/augment.py`), so that the sample looks like
-            the same scene without the panel. Why: the Stage occluder sits on the line of sight to the current
-            target, a position cue a policy can learn instead of the target (docs/results/occluder_shortcut.md).
-            Needs the training-only label `observation.teacher.occluder` of the `points` training view;
-            0 (default) turns it off. Inference is unchanged.
+            are moved behind the points the policy reads (`policies/augment.py`), so that the sample looks
+            like the same scene without the panel. Why: the Stage occluder sits on the line of sight to the
+            current target, a position cue a policy can learn instead of the target
+            (docs/results/occluder_shortcut.md). Needs the training-only label `observation.teacher.occluder`
+            of the `points` training view; 0 (default) turns it off. Inference is unchanged.
         compile: Compile the networks with `torch.compile` (point and state encoders, DiT-X, and A-FAR's
-            WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA training
-            where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the first steps
-            then wait for the compiler (again for each new batch size), and on the CPU it needs a C++ compiler.
-            Parameter names, checkpoints and losses are those of the eager networks.
+            WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA
+            training where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the
+            first steps then wait for the compiler (again for each new batch size), and on the CPU it needs a
+            C++ compiler. Parameter names, checkpoints and losses are those of the eager networks.
         compile_mode: `torch.compile`'s mode when `compile` is on: "default", "reduce-overhead" (CUDA graphs:
             also removes the launch cost of the kernels left, at the price of fixed input shapes and more GPU
             memory), "max-autotune" or "max-autotune-no-cudagraphs".
@@ -260,7 +265,9 @@ class ManiFlowConfig(PreTrainedConfig):
         for name in ("points_per_step",):  # fields newer presets set; older presets mean "all"
             if getattr(self, name) is None:
                 setattr(self, name, 0)
-        from lerobot_bavo.limits import check_config_bounds  # sizes from a checkpoint's config.json, before any build
+        from lerobot_bavo.limits import (
+            check_config_bounds,  # sizes from a checkpoint's config.json, before any build
+        )
 
         check_config_bounds(self)
         self.point_encoder_hidden_dims = tuple(int(d) for d in self.point_encoder_hidden_dims)
@@ -286,14 +293,17 @@ class ManiFlowConfig(PreTrainedConfig):
         action_mode = self.normalization_mapping.get("ACTION")
         if self.clip_actions and action_mode != NormalizationMode.MIN_MAX:
             raise ValueError(
-                "`clip_actions=True` clamps normalised actions to [-1, 1], which is their range only under MIN_MAX "
+                "`clip_actions=True` clamps normalised actions to [-1, 1], which is their range only under "
+                "MIN_MAX "
                 f"normalisation; ACTION is normalised with {action_mode}. Set `--policy.clip_actions=false`."
             )
         if self.binary_action_dims is not None:
             self.binary_action_dims = tuple(int(d) for d in self.binary_action_dims)
         self._check_binary_action_dims_mode()
         if not 0.0 <= self.occluder_dropout <= 1.0:
-            raise ValueError(f"`occluder_dropout` must be a probability in [0, 1]. Got {self.occluder_dropout}.")
+            raise ValueError(
+                f"`occluder_dropout` must be a probability in [0, 1]. Got {self.occluder_dropout}."
+            )
         if not 0.0 <= self.flow_batch_ratio <= 1.0:
             raise ValueError(f"`flow_batch_ratio` must be in [0, 1]. Got {self.flow_batch_ratio}.")
         if self.consistency_t_bins < 1:
@@ -303,9 +313,9 @@ class ManiFlowConfig(PreTrainedConfig):
     @property
     def dtype(self) -> str:
         """Precision of lerobot-train's autocast, read by lerobot-train: "bfloat16" when `use_amp`, else
-        "float32". Why: lerobot-train takes the autocast type from a policy's `dtype` when it has one, else from
-        `use_amp` with torch's default for the device, fp16 on CUDA, which needs loss scaling (a host-device
-        sync per step) and has a narrower range than bf16."""
+        "float32". Why: lerobot-train takes the autocast type from a policy's `dtype` when it has one, else
+        from `use_amp` with torch's default for the device, fp16 on CUDA, which needs loss scaling (a
+        host-device sync per step) and has a narrower range than bf16."""
         return "bfloat16" if self.use_amp else "float32"
 
     def get_optimizer_preset(self) -> FusedAdamWConfig:
@@ -326,8 +336,10 @@ class ManiFlowConfig(PreTrainedConfig):
         action_mode = self.normalization_mapping.get("ACTION")
         if self.binary_action_dims and action_mode != NormalizationMode.MIN_MAX:
             raise ValueError(
-                "`binary_action_dims` snaps normalised actions to -1 / +1, the ends of their range only under MIN_MAX "
-                f"normalisation; ACTION is normalised with {action_mode}. Set `--policy.binary_action_dims=[]`."
+                "`binary_action_dims` snaps normalised actions to -1 / +1, the ends of their range only "
+                "under MIN_MAX "
+                f"normalisation; ACTION is normalised with {action_mode}. Set "
+                "`--policy.binary_action_dims=[]`."
             )
 
     def set_dataset_feature_metadata(self, features: dict) -> None:
@@ -345,12 +357,15 @@ class ManiFlowConfig(PreTrainedConfig):
         inputs = self.input_features or {}
         if OBS_POINT_CLOUD not in inputs and OBS_ENV_STATE not in inputs:
             raise ValueError(
-                f"{type(self).__name__} needs '{OBS_POINT_CLOUD}' (or, privileged-state mode, '{OBS_ENV_STATE}') "
+                f"{type(self).__name__} needs '{OBS_POINT_CLOUD}' (or, privileged-state mode, "
+                f"'{OBS_ENV_STATE}') "
                 f"among the input features. Got {sorted(inputs)}."
             )
         shape = tuple(inputs[self.observation_key].shape)
         c = self.token_channels
-        if not ((len(shape) == 2 and shape[1] == c) or (len(shape) == 1 and shape[0] % c == 0 and shape[0] >= c)):
+        if not (
+            (len(shape) == 2 and shape[1] == c) or (len(shape) == 1 and shape[0] % c == 0 and shape[0] >= c)
+        ):
             raise ValueError(
                 f"'{self.observation_key}' must have shape (N, {c}) or the flat (N * {c},). Got {shape}."
             )
@@ -366,10 +381,15 @@ class ManiFlowConfig(PreTrainedConfig):
             bad = [d for d in self.binary_action_dims if not 0 <= d < action_dim]
             if bad:
                 raise ValueError(
-                    f"`binary_action_dims` {list(self.binary_action_dims)} must index the {action_dim}-dim action; "
+                    f"`binary_action_dims` {list(self.binary_action_dims)} must index the {action_dim}-dim "
+                    "action; "
                     f"{bad} do not. Set them to the action's gripper dimensions, or [] for none."
                 )
-        expected = {OBS_STATE: FeatureType.STATE, OBS_POINT_CLOUD: FeatureType.STATE, OBS_ENV_STATE: FeatureType.ENV}
+        expected = {
+            OBS_STATE: FeatureType.STATE,
+            OBS_POINT_CLOUD: FeatureType.STATE,
+            OBS_ENV_STATE: FeatureType.ENV,
+        }
         for key in (self.observation_key, OBS_STATE):
             if inputs[key].type is not expected[key]:
                 raise ValueError(f"'{key}' must be a {expected[key].name} feature. Got {inputs[key].type}.")

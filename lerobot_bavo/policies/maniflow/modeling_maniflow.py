@@ -3,8 +3,9 @@
 Layout (LeRobot habit): `ManiFlowPolicy` is a thin `PreTrainedPolicy` holding the queues, the loss and the EMA
 copy; `ManiFlowModel` is the network (point encoder, state MLP, DiT-X).
 
-Conventions (one throughout): flow time t = 0 is Gaussian noise, t = 1 is data; x_t = (1 - t) x0 + t x1 and the
-network predicts the velocity x1 - x0 given (x_t, t, dt), dt being the step size (0 for plain flow matching).
+Conventions (one throughout): flow time t = 0 is Gaussian noise, t = 1 is data; x_t = (1 - t) x0 + t x1 and
+the network predicts the velocity x1 - x0 given (x_t, t, dt), dt being the step size (0 for plain flow
+matching).
 """
 
 from __future__ import annotations
@@ -15,11 +16,10 @@ from collections import deque
 
 import torch
 import torch.nn.functional as F  # noqa: N812
-from torch import Tensor, nn
-
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
+from torch import Tensor, nn
 
 from lerobot_bavo.features import TEACHER_OCCLUDER, TEACHER_VISIBLE, TEACHER_Z0, TEACHER_ZF, unflatten_points
 from lerobot_bavo.policies.augment import occluder_dropout
@@ -29,9 +29,9 @@ from .configuration_maniflow import ManiFlowConfig
 # Teacher targets with one entry per cloud point: reordered with the cloud by `occluder_dropout`.
 POINT_ALIGNED_TEACHER_KEYS = (TEACHER_Z0, TEACHER_ZF, TEACHER_VISIBLE)
 
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # Observation encoder.
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 
 
 class PointEncoder(nn.Module):
@@ -64,9 +64,9 @@ class StateEncoder(nn.Module):
         return self.net(state)
 
 
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # DiT-X.
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 
 
 def sinusoidal_embedding(t: Tensor, dim: int, max_period: float = 10000.0) -> Tensor:
@@ -143,16 +143,17 @@ class CrossAttention(nn.Module):
         keys and values.
 
         Why: the score of a query q against the key W_k m + b_k is (W_k^T q) . m + q . b_k, and the
-        attention-weighted sum of the values W_v m + b_v is (A m) W_v^T + b_v (A's rows sum to 1; with attention
-        dropout they are summed and weight b_v). So the H queries are taken into the memory's space instead of
-        the L memory rows into key and value space: per sample and head O(H D Dm + H L Dm) multiply-adds instead
-        of O(L D Dm + H L D / heads), fewer when H is small next to L (DiT-X: 16 action tokens attend to
-        To * N context tokens). Used where the keys and values would serve one call only (training); inference
-        reuses `kv(memory)` over its flow steps.
+        attention-weighted sum of the values W_v m + b_v is (A m) W_v^T + b_v (A's rows sum to 1; with
+        attention dropout they are summed and weight b_v). So the H queries are taken into the memory's space
+        instead of the L memory rows into key and value space: per sample and head O(H D Dm + H L Dm)
+        multiply-adds instead of O(L D Dm + H L D / heads), fewer when H is small next to L (DiT-X: 16 action
+        tokens attend to To * N context tokens). Used where the keys and values would serve one call only
+        (training); inference reuses `kv(memory)` over its flow steps.
         """
         b, h_len, _ = x.shape
         heads = self.heads
-        w_k, w_v = self.kv_proj.weight.view(2, heads, -1, memory.shape[-1]).unbind(0)  # (heads, D/heads, Dm) each
+        # (heads, D/heads, Dm) each
+        w_k, w_v = self.kv_proj.weight.view(2, heads, -1, memory.shape[-1]).unbind(0)
         b_k, b_v = self.kv_proj.bias.view(2, heads, -1).unbind(0)  # (heads, D/heads) each
         q = self.q(x).view(b, h_len, heads, -1) * w_k.shape[1] ** -0.5  # SDPA's 1/sqrt(head width)
         q_memory = torch.einsum("bihe,hem->bhim", q, w_k).reshape(b, heads * h_len, -1)  # (B, heads * H, Dm)
@@ -200,8 +201,8 @@ class DiTXBlock(nn.Module):
     def forward(
         self, x: Tensor, modulation: tuple[Tensor, ...], kv: tuple[Tensor, Tensor] | Tensor
     ) -> Tensor:
-        """x (B, H, D) action tokens; modulation = split_modulation(adaln(c)), batch B or 1; kv per-head context
-        keys/values, or the projected context (B, L, D) itself (`CrossAttention.attend_memory`)."""
+        """x (B, H, D) action tokens; modulation = split_modulation(adaln(c)), batch B or 1; kv per-head
+        context keys/values, or the projected context (B, L, D) itself (`CrossAttention.attend_memory`)."""
         sh1, sc1, g1, sh2, sc2, g2, sh3, sc3, g3 = modulation
         x = torch.addcmul(x, g1, self.self_attn(torch.addcmul(sh1, self.norm1(x), sc1)))
         h = torch.addcmul(sh2, self.norm2(x), sc2)
@@ -250,10 +251,10 @@ class DiTX(nn.Module):
         return [blk.cross_attn.kv(ctx) for blk in self.blocks]
 
     def project_context(self, points: Tensor, states: Tensor) -> Tensor:
-        """The projected context context_in(c) + pos (B, To * N, D) of the context c made of point tokens `points`
-        (B, To, N, Dp) and state features `states` (B, To, Ds), i.e. of `ManiFlowModel.build_context(points,
-        states)`: the state part of context_in is applied once per step rather than once per token, and the
-        concatenated (B, To * N, Dp + Ds) context is never written."""
+        """The projected context context_in(c) + pos (B, To * N, D) of the context c made of point tokens
+        `points` (B, To, N, Dp) and state features `states` (B, To, Ds), i.e. of
+        `ManiFlowModel.build_context(points, states)`: the state part of context_in is applied once per step
+        rather than once per token, and the concatenated (B, To * N, Dp + Ds) context is never written."""
         b, to, n, dp = points.shape
         w_points, w_states = self.context_in.weight[:, :dp], self.context_in.weight[:, dp:]
         per_step = F.linear(states, w_states, self.context_in.bias)[:, :, None]  # (B, To, 1, D)
@@ -262,7 +263,8 @@ class DiTX(nn.Module):
         return (F.linear(points, w_points) + (per_step + per_position)).view(b, to * n, -1)
 
     def modulations(self, t: Tensor, dt: Tensor) -> list[tuple[Tensor, ...]]:
-        """AdaLN-Zero (shift, 1 + scale, gate) x 3 of every block, (B, 1, D) each, from c = proj([emb(t), emb(dt)])."""
+        """AdaLN-Zero (shift, 1 + scale, gate) x 3 of every block, (B, 1, D) each, from c = proj([emb(t),
+        emb(dt)])."""
         c = self.cond_proj(torch.cat([self.t_embed(t), self.dt_embed(dt)], dim=-1))
         return [split_modulation(blk.adaln(c)) for blk in self.blocks]
 
@@ -277,9 +279,9 @@ class DiTX(nn.Module):
         """x (B, H, A) noisy normalised chunk, t and dt (B,) -> velocity (B, H, A).
 
         `context_kv`: every block's cross-attention keys/values (`encode_context`, worth it when reused over
-        flow steps), or the projected context (B, L, D) (`project_context`) that every block attends to without
-        keys and values (one pass, as in training). `modulations` (from `self.modulations(t, dt)`, batch B or 1)
-        may be passed to skip their computation.
+        flow steps), or the projected context (B, L, D) (`project_context`) that every block attends to
+        without keys and values (one pass, as in training). `modulations` (from `self.modulations(t, dt)`,
+        batch B or 1) may be passed to skip their computation.
         """
         h = self.action_in(x) + self.action_pos
         if modulations is None:
@@ -291,9 +293,9 @@ class DiTX(nn.Module):
         return self.out_mlp(self.out_norm(h))
 
 
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # Network.
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 
 
 def snap_binary_dims(actions: Tensor, dims: tuple[int, ...]) -> Tensor:
@@ -332,15 +334,18 @@ def read_logged_values(info: dict, checks: list[tuple[Tensor, str]] = ()) -> dic
     """`info` with its 0-dim tensors turned into Python floats (in place), after raising the message of any
     failed check (a 0-dim bool tensor that is False): one device-to-host copy for all of them.
 
-    Why: each read of a device tensor on the host (`.item()`, `bool()`) waits until the device has run everything
+    Why: each read of a device tensor on the host (`.item()`, `bool()`) waits until the device has run
+    everything
     queued so far, so a training step reads its logged values once, at the end of the forward pass. Not later:
-    LeRobot's metrics tracker keeps Python numbers only, and under mixed precision Accelerate hands lerobot-train
-    a copy of the returned dict.
+    LeRobot's metrics tracker keeps Python numbers only, and under mixed precision Accelerate hands
+    lerobot-train a copy of the returned dict.
     """
     keys = [k for k, v in info.items() if isinstance(v, Tensor)]
     if not keys and not checks:
         return info
-    values = [info[k].detach().float().reshape(()) for k in keys] + [ok.float().reshape(()) for ok, _ in checks]
+    values = [info[k].detach().float().reshape(()) for k in keys] + [
+        ok.float().reshape(()) for ok, _ in checks
+    ]
     host = torch.stack(values).tolist()
     for (_, message), ok in zip(checks, host[len(keys):], strict=True):
         if not ok:
@@ -372,7 +377,8 @@ class ManiFlowModel(nn.Module):
         self.register_load_state_dict_post_hook(_invalidate_after_load)
 
     def encode_observations(self, point_cloud: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
-        """point_cloud (B, To, N, C), state (B, To, S) -> point tokens (B, To, N, Dp), state feats (B, To, Ds)."""
+        """point_cloud (B, To, N, C), state (B, To, S) -> point tokens (B, To, N, Dp), state feats (B, To,
+        Ds)."""
         return self.point_encoder(point_cloud), self.state_encoder(state)
 
     @staticmethod
@@ -393,7 +399,8 @@ class ManiFlowModel(nn.Module):
     def observation_context(
         self, point_cloud: Tensor, state: Tensor, need_future: bool = False
     ) -> tuple[Tensor, dict[str, Tensor]]:
-        """Context tokens (B, To * N, Dp + Ds) for DiT-X plus intermediate features (see `observation_tokens`)."""
+        """Context tokens (B, To * N, Dp + Ds) for DiT-X plus intermediate features (see
+        `observation_tokens`)."""
         point_feats, state_feats, aux = self.observation_tokens(point_cloud, state, need_future=need_future)
         return self.build_context(point_feats, state_feats), aux
 
@@ -403,9 +410,9 @@ class ManiFlowModel(nn.Module):
         """AdaLN modulations of the Euler schedule (t_i = i/N, dt = 1/N), batch 1, for every step.
 
         They depend only on the schedule and on the conditioning weights, so outside autograd they are cached
-        per (num_steps, device, dtype) and reused across calls (at batch 1 their weights are ~40% of what a flow
-        step reads). Whoever changes the weights calls `invalidate_modulation_cache()`: `ManiFlowPolicy` does in
-        `forward` (a training step follows), `update` (EMA), `train()` and after `load_state_dict`.
+        per (num_steps, device, dtype) and reused across calls (at batch 1 their weights are ~40% of what a
+        flow step reads). Whoever changes the weights calls `invalidate_modulation_cache()`: `ManiFlowPolicy`
+        does in `forward` (a training step follows), `update` (EMA), `train()` and after `load_state_dict`.
         """
         key = (num_steps, device, dtype)
         if key in self._modulation_cache and not torch.is_grad_enabled():
@@ -413,8 +420,12 @@ class ManiFlowModel(nn.Module):
         step = 1.0 / num_steps
         dt = torch.full((1,), step, device=device, dtype=dtype)
         mods = [
-            [tuple(m.contiguous() for m in block_mods)
-             for block_mods in self.dit.modulations(torch.full((1,), i * step, device=device, dtype=dtype), dt)]
+            [
+                tuple(m.contiguous() for m in block_mods)
+                for block_mods in self.dit.modulations(
+                    torch.full((1,), i * step, device=device, dtype=dtype), dt
+                )
+            ]
             for i in range(num_steps)
         ]
         if not torch.is_grad_enabled():
@@ -439,17 +450,17 @@ class ManiFlowModel(nn.Module):
         return x
 
 
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # Policy.
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 
 
 class ManiFlowPolicy(PreTrainedPolicy):
     """ManiFlow policy (consistency flow matching with an EMA teacher, 1-2 step Euler inference).
 
-    `self.model` is trained; `self.ema_model` is its EMA copy (updated in `update()`, which lerobot-train calls
-    after every optimiser step), the consistency teacher and, by default, the model used for inference. Both are
-    saved in `model.safetensors`.
+    `self.model` is trained; `self.ema_model` is its EMA copy (updated in `update()`, which lerobot-train
+    calls after every optimiser step), the consistency teacher and, by default, the model used for inference.
+    Both are saved in `model.safetensors`.
     """
 
     config_class = ManiFlowConfig
@@ -458,8 +469,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
     def __init__(self, config: ManiFlowConfig, **kwargs):
         """
         Args:
-            config: Policy configuration; `input_features` / `output_features` must be set (`make_policy` does).
-            kwargs: `dataset_stats` / `dataset_meta` from `make_policy`; unused (normalisation lives in the
+            config: Policy configuration; `input_features` / `output_features` must be set (`make_policy`
+            does). kwargs: `dataset_stats` / `dataset_meta` from `make_policy`; unused (normalisation lives in
+            the
                 processors).
         """
         super().__init__(config)
@@ -483,8 +495,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
     def inference_state_keys(self) -> list[str]:
         """The state-dict entries `select_action` reads: the EMA copy's weights (the trained model's when
-        `use_ema_for_inference` is off). A shipped checkpoint may hold only these (`scripts/ship_checkpoint.py`);
-        loading one fills the other copy from it, so it can also be fine-tuned."""
+        `use_ema_for_inference` is off). A shipped checkpoint may hold only these
+        (`scripts/ship_checkpoint.py`); loading one fills the other copy from it, so it can also be
+        fine-tuned."""
         unused = "model." if self.config.use_ema_for_inference else "ema_model."
         return [k for k in self.state_dict() if not k.startswith(unused)]
 
@@ -496,13 +509,14 @@ class ManiFlowPolicy(PreTrainedPolicy):
         return [model.point_encoder, model.state_encoder, model.dit]
 
     def _compile(self, mode: str) -> None:
-        """`torch.compile` the sub-networks of both copies in place (`nn.Module.compile`: parameter names, and so
-        checkpoints, are unchanged); see `ManiFlowConfig.compile`."""
+        """`torch.compile` the sub-networks of both copies in place (`nn.Module.compile`: parameter names, and
+        so checkpoints, are unchanged); see `ManiFlowConfig.compile`."""
         for model in (self.model, self.ema_model):
             for module in self._compiled_modules(model):
                 module.compile(mode=mode)
 
-    # ---- LeRobot API ----------------------------------------------------------------------------------------
+    # ---- LeRobot API
+    # ----------------------------------------------------------------------------------------
 
     def get_optim_params(self):
         return self.model.parameters()
@@ -528,7 +542,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self.ema_model.invalidate_modulation_cache()
 
     def ema_decay(self, step: int) -> float:
-        """clip(1 - (1 + k) ** -power, 0, max_decay) at update k (0-based), as ManiFlow / diffusers EMAModel."""
+        """clip(1 - (1 + k) ** -power, 0, max_decay) at update k (0-based), as ManiFlow / diffusers
+        EMAModel."""
         return float(min(max(1.0 - (1.0 + step) ** -self.config.ema_power, 0.0), self.config.ema_max_decay))
 
     @torch.no_grad()
@@ -547,13 +562,15 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self._ema_step_host += 1
         self.invalidate_modulation_cache()
 
-    # ---- Inputs ---------------------------------------------------------------------------------------------
+    # ---- Inputs
+    # ---------------------------------------------------------------------------------------------
 
     def _points(self, pc: Tensor) -> Tensor:
         """(..., N * C) flat (dataset layout) or (..., N, C) -> (..., M, C): the first M = `num_tokens` points
         (an exact M-point FPS subsample, clouds being FPS-ordered); object poses: (..., K, 7)."""
         c = self.config.token_channels
-        if not (pc.ndim >= 2 and pc.shape[-1] == c):  # flat: not yet (..., N, C) (nor the first M points of it)
+        # flat: not yet (..., N, C) (nor the first M points of it)
+        if not (pc.ndim >= 2 and pc.shape[-1] == c):
             pc = unflatten_points(pc, self.config.num_points, c)
         m = self.config.num_tokens
         return pc[..., :m, :] if m < pc.shape[-2] else pc
@@ -578,7 +595,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
             )
         return pc, state
 
-    # ---- Inference ------------------------------------------------------------------------------------------
+    # ---- Inference
+    # ------------------------------------------------------------------------------------------
 
     def _inference_model(self) -> ManiFlowModel:
         return self.ema_model if self.config.use_ema_for_inference else self.model
@@ -633,20 +651,21 @@ class ManiFlowPolicy(PreTrainedPolicy):
         generator: torch.Generator | None = None,
     ) -> Tensor:
         """One action (B, A) per call; a new chunk is generated every `n_action_steps` calls. Needs only the
-        current `observation.point_cloud` (or object poses) and `observation.state` (teacher keys are never read
-        here)."""
+        current `observation.point_cloud` (or object poses) and `observation.state` (teacher keys are never
+        read here)."""
         key = self.config.observation_key
         obs = {key: self._points(batch[key]), OBS_STATE: batch[OBS_STATE]}
-        for key, unbatched_ndim in ((key, 2), (OBS_STATE, 1)):
-            if obs[key].ndim == unbatched_ndim:
-                obs[key] = obs[key][None]
+        for name, unbatched_ndim in ((key, 2), (OBS_STATE, 1)):
+            if obs[name].ndim == unbatched_ndim:
+                obs[name] = obs[name][None]
         self._queues = populate_queues(self._queues, obs)
         if len(self._queues[ACTION]) == 0:
             actions = self.predict_action_chunk(obs, noise=noise, generator=generator)
             self._queues[ACTION].extend(actions.transpose(0, 1))
         return self._queues[ACTION].popleft()
 
-    # ---- Training -------------------------------------------------------------------------------------------
+    # ---- Training
+    # -------------------------------------------------------------------------------------------
 
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict]:
         """Consistency flow-matching loss L_FM + L_CT; returns (loss, logging dict of floats).
@@ -664,23 +683,25 @@ class ManiFlowPolicy(PreTrainedPolicy):
         return loss, read_logged_values(info)
 
     def training_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        """The batch a training step reads: with `occluder_dropout` > 0 (training mode only), some samples' occluder
-        points moved behind the points the policy reads (`policies/augment.occluder_dropout`)."""
+        """The batch a training step reads: with `occluder_dropout` > 0 (training mode only), some samples'
+        occluder points moved behind the points the policy reads (`policies/augment.occluder_dropout`)."""
         p = self.config.occluder_dropout
         if not (self.training and p > 0 and self.config.uses_point_cloud):
             return batch
         if TEACHER_OCCLUDER not in batch:
             raise KeyError(
-                f"`occluder_dropout` needs the per-point label '{TEACHER_OCCLUDER}' in the batch: make the training "
-                "view again with `python -m lerobot_bavo.datasets.views --view points` (base-frame clouds of a "
+                f"`occluder_dropout` needs the per-point label '{TEACHER_OCCLUDER}' in the batch: make the "
+                "training "
+                "view again with `python -m lerobot_bavo.datasets.views --view points` (base-frame clouds of "
+                "a "
                 "dataset with `annotation.occluder_pose`), or set --policy.occluder_dropout=0."
             )
         keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
         return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p)
 
     def flow_loss(self, points: Tensor, states: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """ManiFlow's objective on a shared context, given as its point tokens (B, To, N, Dp) and state features
-        (B, To, Ds) (`ManiFlowModel.observation_tokens`; the encoder runs once, with gradients).
+        """ManiFlow's objective on a shared context, given as its point tokens (B, To, N, Dp) and state
+        features (B, To, Ds) (`ManiFlowModel.observation_tokens`; the encoder runs once, with gradients).
 
         The first B - int((1 - flow_batch_ratio) B) samples: flow matching, t ~ scale * Beta(a, b), dt = 0,
         target x1 - x0. The rest: consistency, t ~ U{0, 1/K, ..., (K-1)/K}, dt ~ U(0, 1), t' = min(t + dt, 1);
@@ -697,15 +718,17 @@ class ManiFlowPolicy(PreTrainedPolicy):
         dev, dtype = x1.device, x1.dtype
 
         x0 = torch.randn_like(x1)
-        # Parameters made on the device (a tensor copied from the host waits for the device) and checked here on
-        # the host (the distribution's own check reads them back from the device).
+        # Parameters made on the device (a tensor copied from the host waits for the device) and checked here
+        # on the host (the distribution's own check reads them back from the device).
         if not (cfg.flow_t_beta_a > 0 and cfg.flow_t_beta_b > 0):
             raise ValueError(f"`flow_t_beta_a` and `flow_t_beta_b` must be > 0. Got {cfg.flow_t_beta_a}, "
                              f"{cfg.flow_t_beta_b}.")
         beta = torch.distributions.Beta(torch.full((), cfg.flow_t_beta_a, device=dev),
                                         torch.full((), cfg.flow_t_beta_b, device=dev), validate_args=False)
         t_fm = cfg.flow_t_scale * beta.sample((n_fm,)).to(dtype)
-        t_ct = torch.randint(0, cfg.consistency_t_bins, (n_ct,), device=dev).to(dtype) / cfg.consistency_t_bins
+        t_ct = (
+            torch.randint(0, cfg.consistency_t_bins, (n_ct,), device=dev).to(dtype) / cfg.consistency_t_bins
+        )
         dt_ct = torch.rand(n_ct, device=dev, dtype=dtype)
         t = torch.cat([t_fm, t_ct])
         dt = torch.cat([torch.zeros_like(t_fm), dt_ct])

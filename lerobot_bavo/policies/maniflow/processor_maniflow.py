@@ -3,14 +3,15 @@
 Pre: rename -> add batch dim -> device -> feature layout (`maniflow_feature_layout`) -> normalise (MIN_MAX for
 STATE and ACTION). Post: unnormalise -> cpu. This is LeRobot's default pipeline plus one reshaping step.
 
-Point-cloud normalisation: `observation.point_cloud` is a STATE-typed feature. With the (N, 6) layout LeRobot's
-stats are per last-axis channel, shape (6,), and the normaliser's `2 * (x - min) / (max - min) - 1` broadcasts
-over (B, To, N, 6): exactly ManiFlow's per-channel `limits` normaliser. BAVO datasets store the cloud flat,
-(N * 6,), with the per-channel stats tiled to (N * 6,) (LeRobot's dataset tools fail on 2-D features), which
-normalises the same way. The env, however, returns (N, 6) clouds at evaluation, which do not broadcast against
-(N * 6,) stats: the layout step reshapes every observation feature to the layout the policy was trained with
-(the normaliser's), so both layouts work on both sides. Teacher keys (`observation.teacher.*`) are not in the
-config's input features after `validate_features()`, so they pass through unnormalised and unreshaped.
+Point-cloud normalisation: `observation.point_cloud` is a STATE-typed feature. With the (N, 6) layout
+LeRobot's stats are per last-axis channel, shape (6,), and the normaliser's `2 * (x - min) / (max - min) - 1`
+broadcasts over (B, To, N, 6): exactly ManiFlow's per-channel `limits` normaliser. BAVO datasets store the
+cloud flat, (N * 6,), with the per-channel stats tiled to (N * 6,) (LeRobot's dataset tools fail on 2-D
+features), which normalises the same way. The env, however, returns (N, 6) clouds at evaluation, which do not
+broadcast against (N * 6,) stats: the layout step reshapes every observation feature to the layout the policy
+was trained with (the normaliser's), so both layouts work on both sides. Teacher keys
+(`observation.teacher.*`) are not in the config's input features after `validate_features()`, so they pass
+through unnormalised and unreshaped.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import torch
-
 from lerobot.configs import FeatureType, PipelineFeatureType, PolicyFeature
 from lerobot.processor import (
     ObservationProcessorStep,
@@ -39,14 +39,14 @@ from .configuration_maniflow import ManiFlowConfig
 def per_channel_point_stats(stats: dict[str, Any], n_points: int, channels: int) -> dict[str, torch.Tensor]:
     """Point-cloud stats made independent of point order: reduce per-slot stats to per-channel, tile back.
 
-    Why: a flat (N * C,) cloud's stats may be element-wise, one min/max per point *slot*. `bavo-collect` writes
-    them tiled per channel, but LeRobot's dataset tools (delete / split / merge episodes, stats recomputation)
-    rebuild the global stats from element-wise per-episode stats, so after an edit every slot gets its own
-    range and the same frame normalises differently depending on point order. Reducing over the slots gives
-    exactly the per-channel min and max (the min of per-slot minima is the minimum over all points), so the
-    MIN_MAX normaliser that ManiFlow uses is the same however the dataset was produced. `mean` and `std` are
-    combined assuming equal counts per slot (true: every frame has N points); quantiles, which cannot be
-    combined exactly and are not used by MIN_MAX, become the mean over slots. `count` is kept.
+    Why: a flat (N * C,) cloud's stats may be element-wise, one min/max per point *slot*. `bavo-collect`
+    writes them tiled per channel, but LeRobot's dataset tools (delete / split / merge episodes, stats
+    recomputation) rebuild the global stats from element-wise per-episode stats, so after an edit every slot
+    gets its own range and the same frame normalises differently depending on point order. Reducing over the
+    slots gives exactly the per-channel min and max (the min of per-slot minima is the minimum over all
+    points), so the MIN_MAX normaliser that ManiFlow uses is the same however the dataset was produced. `mean`
+    and `std` are combined assuming equal counts per slot (true: every frame has N points); quantiles, which
+    cannot be combined exactly and are not used by MIN_MAX, become the mean over slots. `count` is kept.
 
     Args:
         stats: LeRobot stats of `observation.point_cloud` (arrays or tensors of shape (N * C,) or (N, C), or
@@ -117,8 +117,10 @@ class FeatureLayoutProcessorStep(ObservationProcessorStep):
                 trailing *= value.shape[-m]
             if not (m and trailing == size):
                 raise ValueError(
-                    f"'{key}' has shape {tuple(value.shape)}, but the policy was trained on {list(shape)} per step "
-                    f"({size} values): the observation does not match the checkpoint (e.g. another point count or "
+                    f"'{key}' has shape {tuple(value.shape)}, but the policy was trained on {list(shape)} "
+                    "per step "
+                    f"({size} values): the observation does not match the checkpoint (e.g. another point "
+                    "count or "
                     "image size); build the env with the checkpoint's settings"
                 )
             observation[key] = value.reshape(*value.shape[: value.ndim - m], *shape)
@@ -166,6 +168,12 @@ def make_maniflow_pre_post_processors(
     steps = make_default_policy_processor_steps(config, dataset_stats, normalizer_device=config.device)
     layout = FeatureLayoutProcessorStep.from_features(config.input_features)
     return make_policy_processor_pipelines(
-        input_steps=[steps.rename_observations, steps.add_batch_dim, steps.to_device, layout, steps.normalize],
+        input_steps=[
+            steps.rename_observations,
+            steps.add_batch_dim,
+            steps.to_device,
+            layout,
+            steps.normalize,
+        ],
         output_steps=[steps.unnormalize, steps.to_cpu],
     )
