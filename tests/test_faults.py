@@ -527,6 +527,12 @@ def test_locks_hold_across_symlinked_spellings_and_for_bavo_eval(tmp_path):
             exclusive_lock(tmp_path / "." / "eval", "bavo-eval")
     finally:
         held.close()
+    # a released lock leaves no file beside the folders, and closing twice is harmless
+    held.close()
+    assert not list(tmp_path.glob(".*.lock")) and not list((tmp_path / "datasets").glob(".*.lock"))
+    with exclusive_lock(out, "bavo-eval"):  # and the folder can be claimed again
+        assert (tmp_path / ".eval.bavo-eval.lock").exists()
+    assert not (tmp_path / ".eval.bavo-eval.lock").exists()
 
 
 # ----------------------------------------------------------------------------- 6. small items

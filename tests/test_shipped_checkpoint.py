@@ -28,6 +28,18 @@ def test_shipped_checkpoint_is_complete_small_and_documented():
     assert "bavo-eval" in card and "huggingface-cli upload" in card and "SR (%)" in card
 
 
+def test_loading_the_config_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """LeRobot's `PreTrainedConfig.from_pretrained` writes a `tmpXXXX.json` it never removes; our loader
+    gives it a private folder and deletes that."""
+    import tempfile
+
+    from lerobot_bavo.checkpoints import load_policy_config
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    assert load_policy_config(SHIPPED_CHECKPOINT).type == "afar"
+    assert list(tmp_path.glob("*.json")) == []  # (torch may make its own cache folder here: not ours)
+
+
 def test_shipped_checkpoint_acts_in_bavo_eval_agent_under_stage_occlusion():
     from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent
