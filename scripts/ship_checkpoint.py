@@ -131,6 +131,8 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         )
     epochs = f"{steps * batch / frames:.1f} epochs; " if frames else ""
     extra = [f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
+    if pol.get("occluder_dropout"):  # the training recipe against the Stage occluder's position cue
+        extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")
     binary = config.get("binary_action_dims", [6, 13])
     return f"""---
 library_name: lerobot
