@@ -168,9 +168,10 @@ schedule with {pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inf
 Reproduce: {'; '.join(reproduce)}.
 {chr(10) + notes if notes else ''}
 ## Weights
-`model.safetensors` holds only what inference reads (the EMA copy; `scripts/ship_checkpoint.py --all-weights`
-ships both copies); loading it fills the training copy from the EMA weights, so fine-tuning with `--policy.path`
-still works, and its actions are bit for bit those of the full checkpoint (`tests/test_inference_checkpoint.py`).
+`model.safetensors` holds only what inference reads (the EMA copy;
+`scripts/ship_checkpoint.py --all-weights` ships both copies); loading it fills the training copy from the EMA
+weights, so fine-tuning with `--policy.path` still works, and its actions are bit for bit those of the full
+checkpoint (`tests/test_inference_checkpoint.py`).
 
 ## Use
 - `bavo-eval --policy PATH`, `bash scripts/demo.sh` (this checkpoint is its default), or
