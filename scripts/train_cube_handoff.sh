@@ -11,6 +11,14 @@
 #   bash scripts/train_cube_handoff.sh afar         # rung 3: A-FAR (same budget and seed as rung 2)
 #   bash scripts/train_cube_handoff.sh eval RUN     # bavo-eval of outputs/train/RUN (clean + stage, 20 seeds)
 #
+# The shipped A-FAR (checkpoints/afar_cube_handoff, step 4000 of this run; its ManiFlow twin: `maniflow` with the
+# same variables and arguments, TAG=_p128_od50):
+#   DATA=dart STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50 \
+#     bash scripts/train_cube_handoff.sh afar --policy.points_per_step=128 --policy.n_action_steps=12 \
+#     --policy.occluder_dropout=0.5
+# A killed run resumes from its last checkpoint when the same command is run again (same variables: they name
+# the run folder).
+#
 # Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
 # Environment overrides: STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM, TAG
 # (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/maniflow_state_b256_s1000), and DATA: empty for
