@@ -155,3 +155,21 @@ def test_grid_on_ray_gives_the_same_results_as_local(tmp_path):
     on_ray = run_grid(grid, tmp_path / "ray", executor="ray")
     assert on_ray == local
     assert json.loads((tmp_path / "ray" / "results.json").read_text()) == local
+
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in CONFIGS.glob("*.yaml")))
+def test_shipped_grid_files_parse_and_name_existing_checkpoints(name, monkeypatch):
+    """Every grid file in configs/ loads (its checkpoints are folders with a config.json, checked by
+    load_grid) when run from the repository root, as their comments say."""
+    from lerobot_bavo.eval.grid import load_grid
+
+    root = Path(__file__).resolve().parent.parent
+    monkeypatch.chdir(root)
+    grid = load_grid(root / "configs" / name)
+    assert grid.methods
+    for method in grid.methods:
+        for policy in method.checkpoints.values():
+            assert policy in ("expert", "expert-frozen-camera") or (root / policy / "config.json").is_file()
