@@ -35,3 +35,26 @@ class EditedScene:
         for _ in range(n):
             mujoco.mj_step(self.m, self.d)
         return self.evaluate()
+
+
+def lerobot_cli(name: str, module: str) -> list[str]:
+    """The command of one of LeRobot's CLIs (e.g. `lerobot-train`): its script next to this interpreter, or
+    `python -m module` when the venv has no script."""
+    import sys
+    from pathlib import Path
+
+    exe = Path(sys.executable).with_name(name)
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", module]
+
+
+def run_offline(cmd: list[str], tmp_path):
+    """Run `cmd` in `tmp_path` as a user would, offline, one BLAS/OpenMP thread, its own HF cache; assert it
+    succeeded (the failure message shows the end of its output) and return the CompletedProcess."""
+    import os
+    import subprocess
+
+    env = dict(os.environ, HF_HUB_OFFLINE="1", HF_HOME=str(tmp_path / "hf"), OPENBLAS_NUM_THREADS="1",
+               OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc

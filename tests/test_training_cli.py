@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _helpers import lerobot_cli, run_offline
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, collect
@@ -22,17 +20,6 @@ from lerobot_bavo.features import TEACHER_PREFIX
 SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 
 
-def _cli(name: str, module: str) -> list[str]:
-    exe = Path(sys.executable).with_name(name)
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", module]
-
-
-def _run(cmd: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, HF_HUB_OFFLINE="1", HF_HOME=str(tmp_path / "hf"), OPENBLAS_NUM_THREADS="1",
-               OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return proc
 
 
 @pytest.fixture(scope="module")
@@ -59,22 +46,22 @@ def points_dataset(tmp_path_factory) -> Path:
 
 def test_afar_trains_checkpoints_resumes_and_evaluates(points_dataset, tmp_path):
     out = tmp_path / "run"
-    train = _cli("lerobot-train", "lerobot.scripts.lerobot_train") + [
+    train = lerobot_cli("lerobot-train", "lerobot.scripts.lerobot_train") + [
         "--policy.type=afar", "--policy.preset=cpu", "--policy.device=cpu", "--policy.push_to_hub=false",
         "--policy.scheduler_warmup_steps=1", "--dataset.repo_id=tester/bavo_tiny_points",
         f"--dataset.root={points_dataset}", "--num_workers=0", "--batch_size=4", "--steps=2", "--save_freq=2",
         "--log_freq=1", f"--output_dir={out}", "--wandb.enable=false", "--seed=3",
     ]
-    first = _run(train, tmp_path)
+    first = run_offline(train, tmp_path)
     assert "loss_evo" in first.stdout + first.stderr  # A-FAR's relational terms are logged
     ckpt2 = out / "checkpoints" / "000002"
     assert (ckpt2 / "pretrained_model" / "model.safetensors").is_file()
 
     # Resume from the saved training state to step 4 (LeRobot's documented resume flags).
-    resume = _cli("lerobot-train", "lerobot.scripts.lerobot_train") + [
+    resume = lerobot_cli("lerobot-train", "lerobot.scripts.lerobot_train") + [
         f"--config_path={ckpt2 / 'pretrained_model' / 'train_config.json'}", "--resume=true", "--steps=4",
         "--save_freq=2"]
-    _run(resume, tmp_path)
+    run_offline(resume, tmp_path)
     state = json.loads((out / "checkpoints" / "000004" / "training_state" / "training_step.json").read_text())
     assert state["step"] == 4
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
@@ -101,8 +88,8 @@ def test_afar_trains_checkpoints_resumes_and_evaluates(points_dataset, tmp_path)
 
     # lerobot-eval loads it too.
     eval_out = tmp_path / "eval"
-    _run(
-        _cli("lerobot-eval", "lerobot.scripts.lerobot_eval")
+    run_offline(
+        lerobot_cli("lerobot-eval", "lerobot.scripts.lerobot_eval")
         + [
             f"--policy.path={ckpt}",
             "--policy.device=cpu",
@@ -126,8 +113,8 @@ def test_afar_trains_with_lerobot_use_amp(points_dataset, tmp_path):
     """`--policy.use_amp=true`: lerobot-train runs the step under bf16 autocast (the config's `dtype`; on the
     CPU as on CUDA) and the relational terms stay finite (they compute distances in fp32)."""
     out = tmp_path / "run"
-    proc = _run(
-        _cli("lerobot-train", "lerobot.scripts.lerobot_train")
+    proc = run_offline(
+        lerobot_cli("lerobot-train", "lerobot.scripts.lerobot_train")
         + [
             "--policy.type=afar",
             "--policy.preset=cpu_fast",

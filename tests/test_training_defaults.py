@@ -5,14 +5,12 @@ count."""
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from _helpers import lerobot_cli, run_offline
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, collect
@@ -24,18 +22,8 @@ OBS_DELTA = [-1 / FPS, 0.0]
 ACTION_DELTA = [i / FPS for i in range(-1, 15)]
 
 
-def _cli(name: str, module: str) -> list[str]:
-    exe = Path(sys.executable).with_name(name)
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", module]
-
-
-def _train(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, HF_HUB_OFFLINE="1", HF_HOME=str(tmp_path / "hf"), OPENBLAS_NUM_THREADS="1",
-               OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    cmd = _cli("lerobot-train", "lerobot.scripts.lerobot_train") + args
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return proc
+def _train(args: list[str], tmp_path: Path):
+    return run_offline(lerobot_cli("lerobot-train", "lerobot.scripts.lerobot_train") + args, tmp_path)
 
 
 @pytest.fixture(scope="module")
