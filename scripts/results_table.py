@@ -15,7 +15,7 @@ import argparse
 import json
 from pathlib import Path
 
-from lerobot_bavo.eval.metrics import wilson_interval
+from lerobot_bavo.metrics import wilson_interval
 
 CONDITIONS = ("clean", "stage", "random")
 # The paper's per-task SR and TPS (%), Appendix tables "Task-level success rate" / "task progress score",

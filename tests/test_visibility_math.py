@@ -178,7 +178,7 @@ def test_accumulator_rejects_skipped_steps_and_missing_values():
 def test_wilson_interval_by_hand():
     """95 % Wilson interval: 0 of n has upper bound z^2 / (n + z^2); n of n the mirror image; 19 of 40 by
     hand."""
-    from lerobot_bavo.eval.metrics import wilson_interval
+    from lerobot_bavo.metrics import wilson_interval
 
     z2 = 1.959964 ** 2
     low, high = wilson_interval(0, 20)
