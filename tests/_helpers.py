@@ -58,3 +58,16 @@ def run_offline(cmd: list[str], tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc
+
+
+def tiny_points_view(root, repo_id: str, settings):
+    """A 2-episode, 40-step Stage dataset of Cube Handoff at `root` (seeds 0, 1, kept even if they fail) and
+    its `points` training view; returns the view's folder (`<root>_points`, repo id `<repo_id>_points`)."""
+    from lerobot_bavo.datasets.collect import CollectConfig, collect
+    from lerobot_bavo.datasets.views import make_view
+
+    collect(CollectConfig(task="cube_handoff", condition="stage", episodes=2, repo_id=repo_id, root=root,
+                          workers=0, commit_every=2, settings=settings, episode_length=40, keep_failures=True,
+                          progress=False))
+    make_view(root, "points")
+    return root.with_name(f"{root.name}_points")

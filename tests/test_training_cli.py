@@ -10,11 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _helpers import lerobot_cli, run_offline
+from _helpers import lerobot_cli, run_offline, tiny_points_view
 
 from lerobot_bavo.datasets import schema as S
-from lerobot_bavo.datasets.collect import CollectConfig, collect
-from lerobot_bavo.datasets.views import make_view
 from lerobot_bavo.features import TEACHER_PREFIX
 
 SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
@@ -25,23 +23,7 @@ SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 @pytest.fixture(scope="module")
 def points_dataset(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("train") / "bavo_tiny"
-    collect(
-        CollectConfig(
-            task="cube_handoff",
-            condition="stage",
-            episodes=2,
-            repo_id="tester/bavo_tiny",
-            root=root,
-            workers=0,
-            commit_every=2,
-            settings=SETTINGS,
-            episode_length=40,
-            keep_failures=True,
-            progress=False,
-        )
-    )
-    make_view(root, "points")
-    return root.with_name("bavo_tiny_points")
+    return tiny_points_view(root, "tester/bavo_tiny", SETTINGS)
 
 
 def test_afar_trains_checkpoints_resumes_and_evaluates(points_dataset, tmp_path):

@@ -10,11 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from _helpers import lerobot_cli, run_offline
+from _helpers import lerobot_cli, run_offline, tiny_points_view
 
 from lerobot_bavo.datasets import schema as S
-from lerobot_bavo.datasets.collect import CollectConfig, collect
-from lerobot_bavo.datasets.views import make_view
 
 SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 FPS = 25
@@ -29,23 +27,7 @@ def _train(args: list[str], tmp_path: Path):
 @pytest.fixture(scope="module")
 def points_view(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("defaults") / "bavo_defaults"
-    collect(
-        CollectConfig(
-            task="cube_handoff",
-            condition="stage",
-            episodes=2,
-            repo_id="tester/bavo_defaults",
-            root=root,
-            workers=0,
-            commit_every=2,
-            settings=SETTINGS,
-            episode_length=40,
-            keep_failures=True,
-            progress=False,
-        )
-    )
-    make_view(root, "points")
-    return root.with_name("bavo_defaults_points")
+    return tiny_points_view(root, "tester/bavo_defaults", SETTINGS)
 
 
 @pytest.fixture(scope="module")
