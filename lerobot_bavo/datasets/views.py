@@ -68,14 +68,14 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     The copy goes to `<root>_<view>` with repo id `<repo_id>_<view>` unless given. An existing
     output folder is an error (LeRobot would mix files), not silently overwritten.
     """
-    from lerobot.datasets.dataset_tools import remove_feature
+    from lerobot.datasets.dataset_tools import modify_features
 
     from lerobot_bavo.datasets.hub import load_bavo_dataset, read_sidecar
     from lerobot_bavo.runtime.files import restore_default_mode
 
     root = Path(root)
+    record = read_sidecar(root)
     if repo_id is None:
-        record = read_sidecar(root)
         if record is None:
             raise ValueError(f"{root} has no bavo-collect record; pass --repo-id")
         repo_id = record["repo_id"]
@@ -84,22 +84,13 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     if output_root.exists():
         raise FileExistsError(f"{output_root} exists; remove it or pass another --output-root")
     drop = removed_features(source.meta.features, view)
-    record = read_sidecar(root)
     point_frame = (record or {}).get("settings", {}).get("point_frame", "base")
+    added = {}
     if view == "points" and S.ANN_OCCLUDER_POSE in source.meta.features and point_frame == "base":
-        from lerobot.datasets.dataset_tools import modify_features
-
         labels = occluder_point_labels(source)
-        info = {"dtype": "float32", "shape": [labels.shape[1]], "names": None}
-        view_ds = modify_features(
-            source,
-            add_features={S.TEACHER_OCCLUDER: (labels, info)},
-            remove_features=drop,
-            output_dir=output_root,
-            repo_id=f"{source.repo_id}_{view}",
-        )
-    else:
-        view_ds = remove_feature(source, drop, output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
+        added[S.TEACHER_OCCLUDER] = (labels, {"dtype": "float32", "shape": [labels.shape[1]], "names": None})
+    view_ds = modify_features(source, add_features=added or None, remove_features=drop,
+                              output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
     restore_default_mode(Path(output_root).glob("videos/*/*/*.mp4"))  # copies keep the source's 0600 mp4s
     return view_ds
 
