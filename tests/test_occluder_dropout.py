@@ -106,3 +106,16 @@ def test_policy_reads_the_panel_free_points_in_training_only():
     policy.train()
     with pytest.raises(KeyError, match="occluder"):
         policy.training_batch({"observation.point_cloud": cloud})
+
+
+def test_batched_quaternion_matrices_equal_mujocos():
+    import mujoco
+
+    from lerobot_bavo.sim.transforms import matrices_from_quats
+
+    q = np.random.default_rng(0).standard_normal((5, 3, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    expected = np.zeros((5, 3, 9))
+    for i in np.ndindex(5, 3):
+        mujoco.mju_quat2Mat(expected[i], q[i])
+    np.testing.assert_allclose(matrices_from_quats(q), expected.reshape(5, 3, 3, 3), atol=1e-12)

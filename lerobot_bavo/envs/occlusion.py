@@ -181,16 +181,12 @@ def points_on_occluder(
     if xyz.shape[-1] != 3 or pose.shape[-1] != 7 or xyz.shape[:-2] != pose.shape[:-1]:
         raise ValueError(f"expected xyz (..., N, 3) and pose (..., 7) with the same leading axes; got "
                          f"{xyz.shape} and {pose.shape}")
+    from lerobot_bavo.sim.transforms import matrices_from_quats
+
     q = pose[..., 3:]
     norm = np.linalg.norm(q, axis=-1, keepdims=True)
     present = norm[..., 0] > 1e-9
-    w, x, y, z = np.moveaxis(q / np.where(norm > 1e-9, norm, 1.0), -1, 0)
-    # rotation matrix columns: the panel's normal, width and height axes in the base frame
-    rot = np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], -1),
-        np.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], -1),
-        np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -1)  # (..., 3, 3), rot[..., :, k] = axis k
+    rot = matrices_from_quats(q / np.where(norm > 1e-9, norm, 1.0))  # columns: normal, width, height axes
     local = np.einsum("...nj,...jk->...nk", xyz - pose[..., None, :3], rot)  # point coords along the axes
     half = np.asarray(OCCLUDER_HALF_EXTENTS) + margin
     inside = np.all(np.abs(local) <= half, axis=-1)

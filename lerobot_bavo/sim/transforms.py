@@ -108,3 +108,14 @@ def look_at_matrix(pos, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 def look_at_quat(pos, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Quaternion of `look_at_matrix`."""
     return quat_from_matrix(look_at_matrix(pos, target, up))
+
+
+def matrices_from_quats(quats: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit wxyz quaternions (..., 4), vectorised (MuJoCo's `mju_quat2Mat`
+    takes one at a time; a dataset's per-frame poses are tens of thousands)."""
+    w, x, y, z = np.moveaxis(np.asarray(quats, dtype=np.float64), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
