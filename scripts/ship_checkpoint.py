@@ -29,9 +29,9 @@ def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
     fills the other copy. Returns (tensors kept, tensors dropped)."""
     from safetensors.torch import load_file, save_file
 
-    used, unused = (
-        ("ema_model.", "model.") if config.get("use_ema_for_inference", True) else ("model.", "ema_model.")
-    )
+    from lerobot_bavo.policies.maniflow.modeling_maniflow import inference_weight_prefixes
+
+    used, unused = inference_weight_prefixes(config.get("use_ema_for_inference", True))
     tensors = load_file(str(file))
     kept = {k: v for k, v in tensors.items() if not k.startswith(unused)}
     if not any(k.startswith(used) for k in kept):

@@ -310,6 +310,11 @@ def snap_binary_dims(actions: Tensor, dims: tuple[int, ...]) -> Tensor:
     return out
 
 
+def inference_weight_prefixes(use_ema_for_inference: bool) -> tuple[str, str]:
+    """(prefix of the weight copy inference reads, prefix of the one it does not) in a policy's state dict."""
+    return ("ema_model.", "model.") if use_ema_for_inference else ("model.", "ema_model.")
+
+
 def _fill_missing_copy(state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs):
     """Load-time hook of the policies: a checkpoint that holds only one of the two weight copies (`model.*`,
     `ema_model.*`; an inference-only checkpoint holds the EMA copy) gives its weights to the other as well."""
@@ -498,7 +503,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         `use_ema_for_inference` is off). A shipped checkpoint may hold only these
         (`scripts/ship_checkpoint.py`); loading one fills the other copy from it, so it can also be
         fine-tuned."""
-        unused = "model." if self.config.use_ema_for_inference else "ema_model."
+        _, unused = inference_weight_prefixes(self.config.use_ema_for_inference)
         return [k for k in self.state_dict() if not k.startswith(unused)]
 
     def _make_model(self, config: ManiFlowConfig) -> ManiFlowModel:
