@@ -11,7 +11,7 @@ step and the EMA update. The two paths alternate step by step in one process, so
 affects both alike. Prints medians, the samples/s of each path, their ratio, and the loading
 cost per sample of each reader alone.
 
-Example (both cores, the Cube Handoff points view made by scripts/train_cube_handoff.sh views):
+Example (both cores, the Cube Handoff points view made by scripts/train_task.sh views):
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py \\
         --root outputs/datasets/bavo_cube_handoff_points --repo-id local/bavo_cube_handoff_points
 

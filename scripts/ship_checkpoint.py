@@ -157,7 +157,7 @@ inference (`binary_action_dims`). Teacher features are training-only.
 ## Training
 `lerobot-train --policy.type=afar --policy.preset={pol['preset']} {' '.join(extra)}
 --dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch}
---steps={train['steps']} --seed={train['seed']} --num_workers=0` (`scripts/train_cube_handoff.sh afar` with
+--steps={train['steps']} --seed={train['seed']} --num_workers=0` (`scripts/train_task.sh afar` with
 the matching environment variables). Budget: {steps} steps x batch {batch} = {steps * batch:,}
 samples{schedule} ({epochs}the paper: 100K x 64 = 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine
 schedule with {pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inference.

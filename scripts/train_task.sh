@@ -1,0 +1,127 @@
+#!/usr/bin/env bash
+# The CPU recipe behind docs/results/ (the ladder on Cube Handoff, the shipped A-FAR checkpoints), one stage at a
+# time, for any BAVO-Bench task (TASK, default cube_handoff). Every training is a plain `lerobot-train` call:
+# resumable (re-run the same stage), checkpointed every SAVE_FREQ steps. On a GPU use the same commands with
+# DEVICE=cuda (and, for the paper's scale, PRESET=paper STEPS=100000).
+#
+#   bash scripts/train_task.sh collect      # 100 Stage demonstrations (bavo-collect), 3.6-5.1 min on an idle 2-core machine
+#   bash scripts/train_task.sh views        # the `points` and `state` training views
+#   bash scripts/train_task.sh state        # rung 1: privileged-state ManiFlow
+#   bash scripts/train_task.sh maniflow     # rung 2: point-cloud ManiFlow
+#   bash scripts/train_task.sh afar         # rung 3: A-FAR (same budget and seed as rung 2)
+#   bash scripts/train_task.sh eval RUN     # bavo-eval of outputs/train/RUN on the validation seeds (clean + stage)
+#   bash scripts/train_task.sh test RUN STEP  # bavo-eval on the 40 test seeds 2000-2039, clean + stage + random
+#   bash scripts/train_task.sh recipe METHOD  # collect + views + the shipped recipe for METHOD (afar|maniflow),
+#                                             # stopped after step STOP_AT (4000) + its test evaluation; resumable
+#
+# The shipped A-FARs (checkpoints/afar_<task>: step 4000 of a 5000-step cosine schedule, fixed in advance):
+#   TASK=block_stacking bash scripts/train_task.sh recipe afar
+# which is, for each task:
+#   DATA=dart STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50 \
+#     bash scripts/train_task.sh afar --policy.points_per_step=128 --policy.n_action_steps=12 \
+#     --policy.occluder_dropout=0.5
+# A killed run resumes from its last checkpoint when the same command is run again (same variables: they name
+# the run folder, outputs/train/<task>_<method><TAG>_dart_s<SEED>).
+#
+# Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
+# Environment overrides: TASK, STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM,
+# TAG (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/cube_handoff_maniflow_state_b256_s1000), STOP_AT,
+# WORKERS (collection and evaluation processes, default 2), and DATA: empty for the noise-free demonstrations
+# (outputs/datasets/bavo_<task>), `dart` for the DART-style ones collected with `--execution-noise $NOISE`
+# (default 0.01 rad; outputs/datasets/bavo_<task>_dart, runs get a _dart suffix).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
+export OMP_NUM_THREADS="${THREADS:-1}"
+TASK="${TASK:-cube_handoff}"
+DATA="${DATA:-}"
+WORKERS="${WORKERS:-2}"
+STOP_AT="${STOP_AT:-4000}"
+NOISE="${NOISE:-0.01}"
+DS=outputs/datasets/bavo_${TASK}${DATA:+_$DATA}
+REPO=local/bavo_${TASK}${DATA:+_$DATA}
+STEPS="${STEPS:-8000}"
+BATCH="${BATCH:-64}"
+SAVE_FREQ="${SAVE_FREQ:-1000}"
+PRESET="${PRESET:-cpu_fast}"
+SEED="${SEED:-1000}"
+DEVICE="${DEVICE:-cpu}"
+EPISODES="${EPISODES:-20}"
+LR="${LR:-}"          # empty: the policy's preset (1e-4, the paper's)
+WARMUP="${WARMUP:-}"  # empty: the preset's 500 warm-up steps
+TAG="${TAG:-}${DATA:+_$DATA}"
+FROM="${FROM:-}"      # a pretrained_model folder to fine-tune (e.g. checkpoints/afar_cube_handoff); empty: from scratch
+
+train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
+    local name=$1 type=$2 view=$3
+    shift 3
+    local out=outputs/train/$name
+    if [ -f "$out/checkpoints/last/pretrained_model/train_config.json" ]; then
+        echo "[train] resuming $out"
+        .venv/bin/lerobot-train --config_path="$out/checkpoints/last/pretrained_model/train_config.json" \
+            --resume=true 2>&1 | tee -a "outputs/train/$name.log"
+        return
+    fi
+    mkdir -p outputs/train
+    local policy_args=(--policy.type="$type" --policy.preset="$PRESET")
+    # FROM: start from a checkpoint's weights, EMA and processors (its config; fresh optimiser and schedule)
+    [ -n "$FROM" ] && policy_args=(--policy.path="$FROM")
+    .venv/bin/lerobot-train "${policy_args[@]}" \
+        --dataset.repo_id="${REPO}_$view" --dataset.root="${DS}_$view" \
+        --policy.device="$DEVICE" --policy.push_to_hub=false --num_workers=0 \
+        --batch_size="$BATCH" --steps="$STEPS" --save_freq="$SAVE_FREQ" --log_freq=50 --seed="$SEED" \
+        --output_dir="$out" --wandb.enable=false ${LR:+--policy.optimizer_lr="$LR"} \
+        ${WARMUP:+--policy.scheduler_warmup_steps="$WARMUP"} "$@" 2>&1 | tee "outputs/train/$name.log"
+}
+
+case "${1:-}" in
+    collect)
+        .venv/bin/bavo-collect --task "$TASK" --condition stage --episodes 100 --repo-id "$REPO" \
+            --root "$DS" --workers "$WORKERS" ${DATA:+--execution-noise "$NOISE"} ;;
+    views)
+        for v in points state; do
+            [ -d "${DS}_$v" ] || .venv/bin/python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
+        done ;;
+    state) train "${TASK}_maniflow_state${TAG}_s$SEED" maniflow state "${@:2}" ;;
+    maniflow) train "${TASK}_maniflow${TAG}_s$SEED" maniflow points "${@:2}" ;;
+    afar) train "${TASK}_afar${TAG}_s$SEED" afar points "${@:2}" ;;
+    eval)
+        run=${2:?usage: eval RUN [STEP]}
+        step=${3:-last}
+        .venv/bin/bavo-eval --policy "outputs/train/$run/checkpoints/$step/pretrained_model" \
+            --tasks "$TASK" --conditions clean,stage --episodes "$EPISODES" --seed 1000 \
+            --workers 1 --videos 2 --output-dir "outputs/eval/${run}_$step" ;;
+    test)
+        run=${2:?usage: test RUN STEP}
+        step=$(printf %06d "${3:?usage: test RUN STEP}")
+        .venv/bin/bavo-eval --policy "outputs/train/$run/checkpoints/$step/pretrained_model" \
+            --tasks "$TASK" --conditions clean,stage,random --episodes 40 --seed 2000 \
+            --workers "$WORKERS" --output-dir "outputs/eval/${run}_${step}_test" ;;
+    recipe)
+        method=${2:?usage: recipe afar|maniflow}
+        case "$method" in afar|maniflow) ;; *) echo "recipe: afar or maniflow, not '$method'" >&2; exit 2 ;; esac
+        export DATA=dart STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50
+        # bavo-collect resumes a killed collection; the marker (beside the dataset) says it finished
+        [ -f "outputs/datasets/bavo_${TASK}_dart.collected" ] \
+            || { "$0" collect && touch "outputs/datasets/bavo_${TASK}_dart.collected"; }
+        "$0" views
+        run="${TASK}_${method}_p128_od50_dart_s$SEED"
+        ckpt=$(printf %06d "$STOP_AT")
+        if [ ! -d "outputs/train/$run/checkpoints/$ckpt" ]; then
+            # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
+            "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 &
+            pid=$!
+            while kill -0 "$pid" 2>/dev/null; do
+                # LeRobot moves `last` once a checkpoint is completely written
+                if [ "$(readlink "outputs/train/$run/checkpoints/last" 2>/dev/null)" = "$ckpt" ]; then
+                    pkill -INT -P "$pid" -f lerobot-train || true; sleep 10; pkill -P "$pid" -f lerobot-train || true
+                    break
+                fi
+                sleep 15
+            done
+            wait "$pid" || true
+        fi
+        "$0" test "$run" "$STOP_AT" ;;
+    *)
+        sed -n 2,33p "$0"; exit 2 ;;
+esac
