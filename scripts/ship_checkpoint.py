@@ -6,6 +6,11 @@ log's wall time, bavo-eval's results.json), so its numbers are the measured ones
     python scripts/ship_checkpoint.py --run outputs/train/afar_s1000 --step 006000 \\
         --eval outputs/eval/afar_s1000_006000/results.json --output checkpoints/afar_cube_handoff
 
+The card names the method (the config's policy type) and the task (the training data's `bavo-collect`
+record, else the evaluated cells). Without `--eval` the card says the checkpoint is not evaluated yet: ship,
+evaluate the shipped folder, then ship again with `--checkpoint DIR --eval results.json` (what
+`scripts/train_task.sh recipe` does).
+
 Inference settings (`--num-inference-steps`, `--n-action-steps`) are written into the shipped config.json and
 the card says they differ from training; `--notes FILE` adds how they were chosen. `--checkpoint DIR` re-ships
 a `pretrained_model` folder (e.g. the shipped one, in place) when the training run is not on this machine;
@@ -62,15 +67,36 @@ def collection_summary(train: dict) -> dict | None:
         return None
     settings = record["settings"]
     return {"root": str(base), "view_root": str(view_root), "repo_id": record["repo_id"],
+            "task": settings["task"],
             "condition": settings["condition"], "execution_noise": settings.get("execution_noise"),
             "episodes": info["total_episodes"], "frames": info["total_frames"],
             "discarded": len(record.get("discarded", [])), "next_seed": record.get("next_seed"),
             "base_seed": settings.get("base_seed", 0)}
 
 
+METHODS = {  # policy type -> (name on the card, what it is)
+    "afar": ("A-FAR", "ManiFlow + WorldQueryFormer future tokens + gated fusion + relational distillation"),
+    "maniflow": ("ManiFlow", "consistency flow matching on point clouds: A-FAR's backbone, without its "
+                             "future tokens"),
+}
+
+
+def card_task(data: dict | None, evals: list[dict]) -> str:
+    """The task the checkpoint was trained on: its data's bavo-collect record, else the one evaluated task."""
+    if data is not None:
+        return data["task"]
+    tasks = {key.split("/")[0] for results in evals for key in results["cells"]}
+    if len(tasks) != 1:
+        raise SystemExit(f"cannot tell the training task (data not on this machine; evaluated tasks {tasks})")
+    return tasks.pop()
+
+
 def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data: dict | None, config: dict,
          notes: str = "") -> str:
     pol, ds = train["policy"], train["dataset"]
+    method, what = METHODS.get(pol["type"], (pol["type"], "a LeRobot policy"))
+    task = card_task(data, evals)
+    title = task.replace("_", " ").title()
     steps_note = (f" (trained with {pol['num_inference_steps']}; set in the shipped config.json)"
                   if config["num_inference_steps"] != pol["num_inference_steps"] else "")
     chunk_note = (f" (the training config had {pol['n_action_steps']}; set in the shipped config.json)"
@@ -89,15 +115,19 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                 f"{cell['sr']:.1f} | {cell['tps']:.1f} |"
             )
         conds = ",".join(sorted({k.split("/")[1] for k in results["cells"]}))
-        reproduce.append(f"`bavo-eval --policy checkpoints/{name} --tasks cube_handoff --conditions {conds} "
+        reproduce.append(f"`bavo-eval --policy checkpoints/{name} --tasks {task} --conditions {conds} "
                          f"--episodes {results['episodes']} --seed {seed}`")
+    if not evals:
+        table = ["Not evaluated yet."]
+        reproduce = [f"`bavo-eval --policy checkpoints/{name} --tasks {task} --conditions clean,stage,random "
+                     "--episodes 40 --seed 2000`"]
     cells = [c for results in evals for c in results["cells"].values()]
     status = (
         "\n**Status: it does not succeed yet (SR 0 in every cell below).** It is shipped so that the demo, "
         "both\n"
         "evaluators and the Hub recipe run a real learned policy; the failure ladder in\n"
         "docs/results/ladder_cube_handoff.md says what the CPU budget reached.\n"
-        if all(c["sr"] == 0 for c in cells)
+        if cells and all(c["sr"] == 0 for c in cells)
         else ""
     )
     wall = (
@@ -121,7 +151,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
             else ""
         )
         data_text = (
-            f"`bavo-collect --task cube_handoff --condition {data['condition']} --episodes "
+            f"`bavo-collect --task {task} --condition {data['condition']} --episodes "
             f"{data['episodes']} "
             f"--repo-id {data['repo_id']} --root {data['root']} --workers 2{noise_flag}` "
             f"({noise_text}{data['episodes']} successful episodes from seeds {data['base_seed']}-"
@@ -134,15 +164,16 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
     if pol.get("occluder_dropout"):  # the training recipe against the Stage occluder's position cue
         extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")
     binary = config.get("binary_action_dims", [6, 13])
+    demo = ", `bash scripts/demo.sh` (this checkpoint is its default)" if name == "afar_cube_handoff" else ""
     return f"""---
 library_name: lerobot
-tags: [lerobot, robotics, bavo-bench, a-far, active-vision]
+tags: [lerobot, robotics, bavo-bench, {pol['type']}, active-vision]
 ---
 
-# {name}: A-FAR on BAVO-Bench Cube Handoff (CPU scale)
+# {name}: {method} on BAVO-Bench {title} (CPU scale)
 {status}
-A-FAR (ManiFlow + WorldQueryFormer future tokens + gated fusion + relational distillation) trained with
-`lerobot-train` on scripted demonstrations of `cube_handoff`, at the `{pol['preset']}`
+{method} ({what}) trained with
+`lerobot-train` on scripted demonstrations of `{task}`, at the `{pol['preset']}`
 size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and docs/DESIGN.md for every size
 that differs from the paper, and why). Inputs: `observation.point_cloud` (256 coloured points in the robot
 base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample)
@@ -155,11 +186,13 @@ inference (`binary_action_dims`). Teacher features are training-only.
 {data_text}
 
 ## Training
-`lerobot-train --policy.type=afar --policy.preset={pol['preset']} {' '.join(extra)}
+`lerobot-train --policy.type={pol['type']} --policy.preset={pol['preset']} {' '.join(extra)}
 --dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch}
---steps={train['steps']} --seed={train['seed']} --num_workers=0` (`scripts/train_task.sh afar` with
-the matching environment variables). Budget: {steps} steps x batch {batch} = {steps * batch:,}
-samples{schedule} ({epochs}the paper: 100K x 64 = 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine
+--steps={train['steps']} --seed={train['seed']} --num_workers=0` (`TASK={task} scripts/train_task.sh
+{pol['type']}` with the matching environment variables; `TASK={task} bash scripts/train_task.sh recipe
+{pol['type']}` runs data, training, shipping and evaluation).
+Budget: {steps} steps x batch {batch} = {steps * batch:,} samples{schedule} ({epochs}the paper: 100K x 64 =
+6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine
 schedule with {pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inference.
 
 ## Results (bavo-eval; the demonstrations used seeds below 1000)
@@ -174,11 +207,11 @@ weights, so fine-tuning with `--policy.path` still works, and its actions are bi
 checkpoint (`tests/test_inference_checkpoint.py`).
 
 ## Use
-- `bavo-eval --policy PATH`, `bash scripts/demo.sh` (this checkpoint is its default), or
-  `lerobot-eval --policy.path=PATH --env.type=bavo --env.task=cube_handoff --env.condition=stage`.
+- `bavo-eval --policy PATH --tasks {task}`{demo}, or
+  `lerobot-eval --policy.path=PATH --env.type=bavo --env.task={task} --env.condition=stage`.
 - Push to the Hub: `huggingface-cli login`, then
-  `huggingface-cli upload <user>/afar_bavo_cube_handoff checkpoints/afar_cube_handoff .`;
-  load with `--policy.path=<user>/afar_bavo_cube_handoff`.
+  `huggingface-cli upload <user>/{pol['type']}_bavo_{task} checkpoints/{name} .`;
+  load with `--policy.path=<user>/{pol['type']}_bavo_{task}`.
 - Safety: a checkpoint's processor files name Python classes that LeRobot imports; our loaders accept
   only LeRobot's and this package's processor steps (see docs/checkpoints.md).
 """
@@ -201,10 +234,12 @@ def main() -> None:
         help="checkpoint step folder (e.g. 006000) or last; with --checkpoint, the step it was saved at "
         "(for the card's budget) or last",
     )
-    p.add_argument("--eval", type=Path, required=True, action="append",
-                   help="bavo-eval results.json of this checkpoint (repeat for several runs)")
+    p.add_argument("--eval", type=Path, default=[], action="append",
+                   help="bavo-eval results.json of this checkpoint (repeat for several runs); none: the card "
+                   "says it is not evaluated yet")
     p.add_argument("--notes", type=Path, default=None, help="a Markdown file appended to the card's results")
-    p.add_argument("--output", type=Path, default=Path("checkpoints/afar_cube_handoff"))
+    p.add_argument("--output", type=Path, required=True,
+                   help="where to ship it, e.g. checkpoints/afar_<task>")
     p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
     p.add_argument(
         "--point-frame",

@@ -12,7 +12,9 @@
 #   bash scripts/train_task.sh eval RUN     # bavo-eval of outputs/train/RUN on the validation seeds (clean + stage)
 #   bash scripts/train_task.sh test RUN STEP  # bavo-eval on the 40 test seeds 2000-2039, clean + stage + random
 #   bash scripts/train_task.sh recipe METHOD  # collect + views + the shipped recipe for METHOD (afar|maniflow),
-#                                             # stopped after step STOP_AT (4000) + its test evaluation; resumable
+#                                             # stopped after step STOP_AT (4000), shipped to
+#                                             # checkpoints/<method>_<task> and evaluated on the 40 test seeds in
+#                                             # outputs/eval/grid_table/runs/<method>/s<SEED>/<task>; resumable
 #
 # The shipped A-FARs (checkpoints/afar_<task>: step 4000 of a 5000-step cosine schedule, fixed in advance):
 #   TASK=block_stacking bash scripts/train_task.sh recipe afar
@@ -103,13 +105,13 @@ case "${1:-}" in
         export DATA=dart STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50
         # bavo-collect resumes a killed collection; the marker (beside the dataset) says it finished
         [ -f "outputs/datasets/bavo_${TASK}_dart.collected" ] \
-            || { "$0" collect && touch "outputs/datasets/bavo_${TASK}_dart.collected"; }
-        "$0" views
+            || { bash "$0" collect && touch "outputs/datasets/bavo_${TASK}_dart.collected"; }
+        bash "$0" views
         run="${TASK}_${method}_p128_od50_dart_s$SEED"
         ckpt=$(printf %06d "$STOP_AT")
         if [ ! -d "outputs/train/$run/checkpoints/$ckpt" ]; then
             # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
-            "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 &
+            bash "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 &
             pid=$!
             while kill -0 "$pid" 2>/dev/null; do
                 # LeRobot moves `last` once a checkpoint is completely written
@@ -121,7 +123,15 @@ case "${1:-}" in
             done
             wait "$pid" || true
         fi
-        "$0" test "$run" "$STOP_AT" ;;
+        # ship the inference weights, evaluate the shipped folder where `bavo-eval --grid
+        # configs/grid_table.yaml` finds it (runs/<method>/s<SEED>/<task>), then write its card with the results
+        ship="checkpoints/${method}_${TASK}"
+        evaldir="outputs/eval/grid_table/runs/$method/s$SEED/$TASK"
+        .venv/bin/python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
+        .venv/bin/bavo-eval --policy "$ship" --tasks "$TASK" --conditions clean,stage,random --episodes 40 \
+            --seed 2000 --workers "$WORKERS" --videos 0 --output-dir "$evaldir"
+        .venv/bin/python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
+            --output "$ship" ;;
     *)
         sed -n 2,33p "$0"; exit 2 ;;
 esac

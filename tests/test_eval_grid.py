@@ -171,5 +171,49 @@ def test_shipped_grid_files_parse_and_name_existing_checkpoints(name, monkeypatc
     grid = load_grid(root / "configs" / name)
     assert grid.methods
     for method in grid.methods:
-        for policy in method.checkpoints.values():
+        for _, policy, _, _ in method.runs(Path("out")):
             assert policy in ("expert", "expert-frozen-camera") or (root / policy / "config.json").is_file()
+
+
+def test_per_task_checkpoints_get_one_run_per_task(tmp_path, monkeypatch):
+    """A `{task}` checkpoint path (single-task policies, as the paper trains them): one bavo-eval run per
+    (training seed, task) with that task's checkpoint, in runs/<method>/<label>/<task>/, and the method's
+    cells and macro mean gathered from all of them."""
+    for task in ("cube_handoff", "block_stacking"):
+        (tmp_path / f"ck_{task}").mkdir()
+        (tmp_path / f"ck_{task}" / "config.json").write_text("{}")
+    spec = {"tasks": ["cube_handoff", "block_stacking"], "conditions": ["stage"], "episodes": 2, "seed": 2000,
+            "methods": {"afar": {"checkpoints": {"s1": str(tmp_path / "ck_{task}")}}}}
+    grid = parse_grid(spec)
+    (method,) = grid.methods
+    assert method.per_task
+    assert [(label, policy, tasks, folder.relative_to(tmp_path)) for label, policy, tasks, folder
+            in method.runs(tmp_path)] == [
+        ("s1", str(tmp_path / "ck_cube_handoff"), ("cube_handoff",), Path("runs/afar/s1/cube_handoff")),
+        ("s1", str(tmp_path / "ck_block_stacking"), ("block_stacking",), Path("runs/afar/s1/block_stacking")),
+    ]
+    calls = []
+    sr = {"cube_handoff": 50.0, "block_stacking": 0.0}
+
+    def fake_evaluate(policy, tasks, conditions, episodes, seed, output_dir, **kwargs):
+        calls.append((Path(policy).name, tuple(tasks), Path(output_dir).relative_to(tmp_path)))
+        (task,) = tasks
+        return {"cells": {f"{task}/stage": {"sr": sr[task], "tps": 80.0, "cvg": None, "joint": None,
+                                             "n_episodes": episodes}}}
+
+    monkeypatch.setattr(run, "evaluate", fake_evaluate)
+    results = run_grid(grid, tmp_path)
+    assert calls == [("ck_cube_handoff", ("cube_handoff",), Path("runs/afar/s1/cube_handoff")),
+                     ("ck_block_stacking", ("block_stacking",), Path("runs/afar/s1/block_stacking"))]
+    afar = results["methods"]["afar"]
+    assert afar["cells"]["cube_handoff/stage"]["mean"]["sr"] == 50.0
+    assert afar["cells"]["block_stacking/stage"]["mean"]["sr"] == 0.0
+    assert afar["mean_over_tasks"]["stage"]["mean"]["sr"] == 25.0  # (50 + 0) / 2
+    assert afar["runs"] == {"s1/cube_handoff": "runs/afar/s1/cube_handoff",
+                            "s1/block_stacking": "runs/afar/s1/block_stacking"}
+
+
+def test_a_checkpoint_path_holds_no_other_field(tmp_path):
+    spec = {"methods": {"afar": {"checkpoints": {"s1": str(tmp_path / "ck_{seed}")}}}}
+    with pytest.raises(GridError, match=r"the only field a checkpoint path may hold is \{task\}"):
+        parse_grid(spec)

@@ -13,12 +13,16 @@ A grid file (YAML) names the cells; `configs/grid_expert.yaml` is an example:
                       s1001: outputs/train/afar_s1001/checkpoints/last/pretrained_model}
         tasks: [cube_handoff]               # optional: this method on fewer tasks / conditions
       maniflow: [ckpt_seed0, ckpt_seed1]    # a list is a training-seed axis labelled 0, 1, ...
+      afar-per-task:                        # single-task policies: `{task}` in a path is the task's name
+        checkpoints: {s1000: checkpoints/afar_{task}}
 
 The file is UTF-8 YAML of at most `MAX_GRID_BYTES`, without anchors or aliases (`&name`, `*name`; see
 `load_grid`). Relative checkpoint paths are resolved against the current directory. Every (method, training
 seed) is one ordinary `bavo-eval` run in `<output-dir>/runs/<method>/<label>/` (its own run.json,
-episodes.jsonl, results.json), so a killed grid re-run with the same command keeps every finished episode and
-with them every finished cell, and runs only what is missing. The grid then writes, in `<output-dir>`:
+episodes.jsonl, results.json; with a `{task}` checkpoint, one run per task in `.../<label>/<task>/`, which is
+also where `bavo-eval --policy checkpoints/afar_<task> --tasks <task>` can be run beforehand), so a killed
+grid re-run with the same command keeps every finished episode and with them every finished cell, and runs
+only what is missing. The grid then writes, in `<output-dir>`:
 
   results.json  every cell: each training seed's SR / TPS / CVG / Joint and n_episodes, their mean and std
   over
@@ -55,13 +59,30 @@ class GridError(ValueError):
     """A grid file that cannot be run; the message names the file and the offending key or value."""
 
 
+TASK_FIELD = "{task}"  # in a checkpoint path: one single-task checkpoint per task
+
+
 @dataclass(frozen=True)
 class Method:
     name: str
-    # training-seed label -> policy (expert name or checkpoint folder, as written)
+    # training-seed label -> policy (expert name or checkpoint folder, as written; may hold TASK_FIELD)
     checkpoints: dict[str, str]
     tasks: tuple[str, ...]
     conditions: tuple[str, ...]
+
+    @property
+    def per_task(self) -> bool:
+        """Single-task policies (the paper trains one per task): each (training seed, task) is its own run."""
+        return any(TASK_FIELD in policy for policy in self.checkpoints.values())
+
+    def runs(self, output_dir: Path) -> list[tuple[str, str, tuple[str, ...], Path]]:
+        """(label, policy, tasks, run folder) of every bavo-eval run this method takes."""
+        if not self.per_task:
+            return [(label, policy, self.tasks, run_dir(output_dir, self.name, label))
+                    for label, policy in self.checkpoints.items()]
+        return [(label, policy.replace(TASK_FIELD, task), (task,),
+                 run_dir(output_dir, self.name, label) / task)
+                for label, policy in self.checkpoints.items() for task in self.tasks]
 
 
 @dataclass(frozen=True)
@@ -199,9 +220,17 @@ def parse_grid(data, source: str = "grid") -> Grid:
         else:
             m_tasks, m_conds = tasks, conditions
             checkpoints = _checkpoints(spec, where)
+        method = Method(name, checkpoints, m_tasks, m_conds)
         for label, policy in checkpoints.items():
-            check_policy(policy, f"{where} (training seed {label})")
-        methods.append(Method(name, checkpoints, m_tasks, m_conds))
+            if set("{}") & set(policy.replace(TASK_FIELD, "")):
+                raise GridError(
+                    f"{where} (training seed {label}): the only field a checkpoint path may hold is "
+                    f"{TASK_FIELD}"
+                )
+        for label, policy, run_tasks, _ in method.runs(Path(".")):
+            of_task = f", task {run_tasks[0]}" if method.per_task else ""
+            check_policy(policy, f"{where} (training seed {label}{of_task})")
+        methods.append(method)
     return Grid(tasks, conditions, numbers["episodes"], numbers["seed"], tuple(methods))
 
 
@@ -424,9 +453,9 @@ def pending_episodes(grid: Grid, output_dir: Path) -> int:
 
     missing = 0
     for m in grid.methods:
-        for label in m.checkpoints:
-            done = read_episode_log(run_dir(output_dir, m.name, label) / "episodes.jsonl")
-            missing += sum((t, c, grid.seed + i) not in done for t in m.tasks for c in m.conditions
+        for _, _, tasks, folder in m.runs(output_dir):
+            done = read_episode_log(folder / "episodes.jsonl")
+            missing += sum((t, c, grid.seed + i) not in done for t in tasks for c in m.conditions
                            for i in range(grid.episodes))
     return missing
 
@@ -446,7 +475,8 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
         total = (
             sum(len(m.checkpoints) * len(m.tasks) * len(m.conditions) for m in grid.methods) * grid.episodes
         )
-        print(f"bavo-eval --grid: {total} episodes in {sum(len(m.checkpoints) for m in grid.methods)} runs; "
+        n_runs = sum(len(m.runs(output_dir)) for m in grid.methods)
+        print(f"bavo-eval --grid: {total} episodes in {n_runs} runs; "
               f"{total - pending} finished, {pending} to run")
         with contextlib.ExitStack() as stack:
             if executor == "ray" and pending:  # one Ray for the whole grid (each run's RayPool then uses it)
@@ -455,18 +485,21 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
                 stack.enter_context(RayPool(workers, address=ray_address))
             runs: dict[str, dict[str, dict]] = {}
             for m in grid.methods:
-                runs[m.name] = {}
-                for label, policy in m.checkpoints.items():
+                runs[m.name] = {label: {"cells": {}} for label in m.checkpoints}
+                for label, policy, tasks, folder in m.runs(output_dir):
                     print(f"bavo-eval --grid: method {m.name}, training seed {label}: {policy}")
-                    runs[m.name][label] = evaluate(
-                        policy, list(m.tasks), list(m.conditions), grid.episodes, grid.seed,
-                        run_dir(output_dir, m.name, label), workers=workers, videos=videos,
+                    result = evaluate(
+                        policy, list(tasks), list(m.conditions), grid.episodes, grid.seed,
+                        folder, workers=workers, videos=videos,
                         trust_remote_code=trust_remote_code, executor=executor, ray_address=ray_address)
+                    runs[m.name][label]["cells"].update(result["cells"])
         results = {"version": GRID_VERSION, "tasks": list(grid.tasks), "conditions": list(grid.conditions),
                    "episodes": grid.episodes, "seed": grid.seed,
                    "methods": {m.name: method_results(m, runs[m.name]) for m in grid.methods}}
-        for name, m in results["methods"].items():
-            m["runs"] = {label: str(run_dir(Path("."), name, label)) for label in m["checkpoints"]}
+        for m in grid.methods:
+            results["methods"][m.name]["runs"] = {
+                label if not m.per_task else f"{label}/{tasks[0]}": str(folder)
+                for label, _, tasks, folder in m.runs(Path("."))}
         table = grid_markdown(results)
         write_results(
             {
