@@ -1,0 +1,57 @@
+"""scripts/results_table.py: the paper-format table's pooled Wilson interval and macro mean over tasks and
+training seeds, checked on hand-computed cases, and the paper's own macro row reproduced from its per-task
+tables (a check that the transcribed numbers are consistent)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def table():
+    spec = importlib.util.spec_from_file_location("results_table", REPO / "scripts" / "results_table.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def cell(sr, n, tps=50.0, cvg=None):
+    joint = None if cvg is None else sr * cvg / 100
+    return {"sr": sr, "tps": tps, "cvg": cvg, "joint": joint, "n_episodes": n}
+
+
+def test_pooled_interval_counts_every_episode(table):
+    # two training seeds, 17/40 and 23/40: pooled 40/80 = 50 %; Wilson 95 % for 40/80 is 39.3-60.7 %
+    wins, n, low, high = table.pooled_sr_interval({"a": cell(42.5, 40), "b": cell(57.5, 40)})
+    assert (wins, n) == (40, 80)
+    assert low == pytest.approx(39.3, abs=0.1) and high == pytest.approx(60.7, abs=0.1)
+
+
+def test_macro_is_mean_over_tasks_then_over_seeds(table):
+    cells = {"cube_handoff/stage": {"s0": cell(40.0, 40), "s1": cell(60.0, 40)},
+             "block_stacking/stage": {"s0": cell(0.0, 40), "s1": cell(20.0, 40)}}
+    mean, std = table.macro(cells, ["cube_handoff", "block_stacking"], "stage", "sr")
+    # seed s0: (40 + 0) / 2 = 20; seed s1: (60 + 20) / 2 = 40; mean 30, sample std sqrt(2 * 10^2 / 1) = 14.14
+    assert mean == pytest.approx(30.0) and std == pytest.approx(14.1421356)
+
+
+def test_a_method_with_fewer_tasks_says_so(table):
+    methods = {"afar": {f"cube_handoff/{c}": {"s0": cell(50.0, 40, cvg=20.0 if c == "random" else None)}
+                        for c in table.CONDITIONS}}
+    text = table.report(methods)
+    assert "| afar | 1 of 5 | 1 | 50.0 | 50.0 | 50.0 | 50.0 | 50.0 | 50.0 |" in text
+    assert "(1 of 5 tasks)" in text  # no five-task CVG average from one task
+    assert "50.0 [35-65] (20/40)" in text  # Wilson 95 % for 20/40: 0.5 -+ 0.148 = 35.2-64.8 %
+
+
+def test_paper_macro_matches_its_per_task_tables(table):
+    for method, (sr, tps) in table.PAPER_MACRO.items():
+        for i in range(3):
+            for values, per_task in ((sr, 0), (tps, 1)):
+                mean = sum(table.PAPER_TASKS[t][method][per_task][i][0] for t in table.TASKS) / 5
+                assert mean == pytest.approx(values[i][0], abs=0.15), (method, i, per_task)
