@@ -131,7 +131,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         else ""
     )
     wall = (
-        f"{wall_min:.1f} min of wall on 2 shared CPU cores (one torch thread)" if wall_min else "see the log"
+        f"{wall_min:.1f} min of wall on a 2-core CPU machine" if wall_min else "see the log"
     )
     if data is None:
         data_text = (
