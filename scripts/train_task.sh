@@ -125,7 +125,8 @@ case "${1:-}" in
         fi
         # ship the inference weights, evaluate the shipped folder where `bavo-eval --grid
         # configs/grid_table.yaml` finds it (runs/<method>/s<SEED>/<task>), then write its card with the results
-        ship="checkpoints/${method}_${TASK}"
+        ship="checkpoints/${method}_${TASK}"  # the first training seed's; others get a suffix
+        [ "$SEED" = 1000 ] || ship="${ship}_s$SEED"
         evaldir="outputs/eval/grid_table/runs/$method/s$SEED/$TASK"
         .venv/bin/python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
         .venv/bin/bavo-eval --policy "$ship" --tasks "$TASK" --conditions clean,stage,random --episodes 40 \
