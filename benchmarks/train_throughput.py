@@ -15,9 +15,11 @@ Example (both cores, the Cube Handoff points view made by scripts/train_task.sh 
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py \\
         --root outputs/datasets/bavo_cube_handoff_points --repo-id local/bavo_cube_handoff_points
 
-With `--baseline-commit C` it compares training steps instead (issue 28): the policy code of commit C (its
-`lerobot_bavo/`, taken with `git archive` into a temporary folder) against the working tree's, same data path
-(in-memory), preset, batch and device. Each runs in its own subprocess (a package cannot be imported twice in
+With `--baseline-commit C` it compares training steps instead (issue 28): the code of commit C (its
+`lerobot_bavo/`, taken with `git archive` into a temporary folder) against the working tree's, same preset,
+batch and device, each loading data the way `lerobot-train` does with that code (its plugin hook's dataset
+class: per-item in-memory reads at 3be7046, the issue's "today", whole batches since a7b34be; DataLoader with
+num_workers=0). Each runs in its own subprocess (a package cannot be imported twice in
 one process); the parent alternates them step by step, so machine load affects both alike. A step is
 LeRobot's own `update_policy` (autocast when `--use-amp`, forward, backward, gradient norm, optimiser, EMA
 `update()`, metrics) after fetching and normalising the batch, as `lerobot-train` does it. On CUDA it also
@@ -163,6 +165,7 @@ def serve_steps(args) -> None:
     import json
     import sys
 
+    import lerobot.datasets.factory as lerobot_dataset_factory
     import torch
     from accelerate import Accelerator
     from lerobot.datasets.factory import resolve_delta_timestamps
@@ -173,7 +176,7 @@ def serve_steps(args) -> None:
 
     import lerobot_bavo
     import lerobot_bavo.policies  # noqa: F401  (registers the policies; `import lerobot_bavo` alone does not)
-    from lerobot_bavo.datasets.fast import use_in_memory_reader
+    from lerobot_bavo.datasets.fast import install_lerobot_train_hook
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -182,8 +185,12 @@ def serve_steps(args) -> None:
         args.policy, preset=args.preset, device=args.device, use_amp=args.use_amp, **overrides
     )
     meta = LeRobotDatasetMetadata(args.repo_id, root=args.root)
-    ds = LeRobotDataset(args.repo_id, root=args.root, delta_timestamps=resolve_delta_timestamps(cfg, meta))
-    if not use_in_memory_reader(ds):
+    # The dataset class lerobot-train gets from each code version: its plugin hook replaces the factory's
+    # `LeRobotDataset` (per-item reads before the batched path existed, whole batches after).
+    install_lerobot_train_hook()
+    dataset_class = lerobot_dataset_factory.LeRobotDataset
+    ds = dataset_class(args.repo_id, root=args.root, delta_timestamps=resolve_delta_timestamps(cfg, meta))
+    if type(ds) is LeRobotDataset or not hasattr(ds.reader, "columns"):
         raise SystemExit(
             f"{args.root} cannot be served from memory (see lerobot_bavo.datasets.fast.supports)"
         )
