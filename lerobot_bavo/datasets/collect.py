@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import functools
 import json
 import logging
 import os
@@ -58,14 +59,16 @@ import sys
 import time
 from pathlib import Path
 
+from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import (  # noqa: F401  (offered here too, where they were first)
     STAGING,
     CollectConfig,
     CollectionError,
 )
+from lerobot_bavo.datasets.episode_payload import video_settings
 from lerobot_bavo.datasets.session import DatasetSession
 from lerobot_bavo.datasets.staging import receive_shipped, run_job, ship_job, warm_job
-from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, quiet_libav
+from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, encoder_threads, quiet_libav, rgb_encoder
 from lerobot_bavo.datasets.writer import StreamingWriter
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
@@ -234,8 +237,18 @@ class Collector(DatasetSession):
         cfg = self.cfg
         return {"task": cfg.task, "condition": cfg.condition, "settings": cfg.settings.to_dict(),
                 "episode_length": cfg.episode_length, "keep_failures": cfg.keep_failures, "seed": seed,
-                "staging": str(self.staging),
+                "staging": str(self.staging), "use_videos": cfg.use_videos,
+                "video": self._video if seed >= 0 else None,
                 "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None}
+
+    @functools.cached_property
+    def _video(self) -> dict | None:
+        """The encoder settings a worker encodes the active camera's mp4 with (`episode_payload`): this run's
+        codec as the LeRobot writer uses it (known once the dataset is open); None without video."""
+        if not self.cfg.use_videos:
+            return None
+        codec = self.video_codec
+        return video_settings(rgb_encoder(codec), encoder_threads(codec), S.FPS)
 
     def _check_discards(self, total: int, limit: int, kept: int, bar) -> None:
         bar.set_postfix(discarded=total)

@@ -42,6 +42,11 @@ offer:
    `dataset_is_finalized`).
 8. A chunking policy's queue of actions still to execute (`_queues["action"]`, ACT's `_action_queue`),
    which `bavo-eval --rerun` records (`policy_action_queue`).
+9. Episodes whose video was encoded where they were recorded (issue 30: a `bavo-collect` worker encodes
+   the active camera's mp4 exactly as LeRobot's streaming encoder would, `datasets.episode_payload`).
+   LeRobot's writer takes an episode's mp4 and frame statistics only from its streaming encoder
+   (`DatasetWriter._streaming_encoder.finish_episode()`); `prebuilt_episode_videos` puts a `PrebuiltVideos`
+   there, which hands over the worker's, so LeRobot still places the mp4 and records it as its own.
 
 `check_private_api()` names every field and attribute used here; a test calls it, so an upgrade of
 LeRobot that renames one fails there with a message saying which, not deep inside a collection.
@@ -54,7 +59,7 @@ import contextlib
 import numpy as np
 
 # (what, where): the private names this module touches.
-WRITER_FIELDS = ("_pq_writer", "_finalized")
+WRITER_FIELDS = ("_pq_writer", "_finalized", "_streaming_encoder")
 META_FIELDS = ("_metadata_buffer", "_pq_writer", "_finalized")
 DATASET_FIELDS = ("_is_finalized",)
 READER_FIELDS = ("_meta", "_image_transforms")  # DatasetReader internals the fast data path reads
@@ -160,16 +165,19 @@ def skip_noop_image_embedding():
 
 
 @contextlib.contextmanager
-def exact_fast_episode_stats():
+def exact_fast_episode_stats(known: dict | None = None):
     """Within the block, LeRobot's writer computes per-episode statistics with
     `lerobot_bavo.datasets.episode_stats.compute_episode_stats` (equal to LeRobot's, without per-dimension
-    histograms)."""
+    histograms), taking the statistics in `known` (feature -> statistics; the caller fills it before each
+    `save_episode`, e.g. with a worker's) as they are."""
+    import functools
+
     import lerobot.datasets.dataset_writer as writer_mod
 
     from lerobot_bavo.datasets.episode_stats import compute_episode_stats
 
     original = writer_mod.compute_episode_stats
-    writer_mod.compute_episode_stats = compute_episode_stats
+    writer_mod.compute_episode_stats = functools.partial(compute_episode_stats, known=known)
     try:
         yield
     finally:
@@ -194,6 +202,52 @@ def deferred_video_frame_stats():
         yield
     finally:
         stats_mod.RunningQuantileStats = original
+
+
+class PrebuiltVideos:
+    """Stands in for a writer's `StreamingVideoEncoder` when every episode's video was encoded elsewhere (a
+    `bavo-collect` worker, `episode_payload`): `finish_episode` hands LeRobot's `save_episode` the mp4 and raw
+    frame statistics set by `put`, as the streaming encoder would hand over its own."""
+
+    def __init__(self):
+        self._next: dict | None = None
+
+    def put(self, videos: dict) -> None:
+        """The next episode's {video_key: (mp4 path in a folder of its own, raw statistics or None)}; LeRobot
+        moves or appends the mp4 into the dataset and deletes its folder."""
+        self._next = videos
+
+    def start_episode(self, *args, **kwargs) -> None:  # noqa: ARG002 (the encoder's interface)
+        raise RuntimeError("PrebuiltVideos takes encoded episodes only (save_episode with episode_data)")
+
+    feed_frame = start_episode
+
+    def finish_episode(self) -> dict:
+        if self._next is None:
+            raise RuntimeError("save_episode without a prebuilt video (PrebuiltVideos.put was not called)")
+        videos, self._next = self._next, None
+        return videos
+
+    def cancel_episode(self) -> None:
+        self._next = None
+
+    def close(self) -> None:
+        self._next = None
+
+
+@contextlib.contextmanager
+def prebuilt_episode_videos(dataset):
+    """Within the block, `dataset`'s writer takes each episode's video from the `PrebuiltVideos` yielded
+    (`put` before every `save_episode(episode_data=...)`) instead of encoding frames: the writer's private
+    `_streaming_encoder` is replaced, and restored afterwards."""
+    writer = dataset.writer
+    original = writer._streaming_encoder
+    videos = PrebuiltVideos()
+    writer._streaming_encoder = videos
+    try:
+        yield videos
+    finally:
+        writer._streaming_encoder = original
 
 
 class _ArrowDataset:
