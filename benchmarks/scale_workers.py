@@ -17,7 +17,10 @@ and prints:
   so a descendant orphaned by a worker or by the coordinator's exit is re-parented here and reaped, and
   `RUSAGE_CHILDREN` then counts every descendant's CPU;
 - the coordinator's share s of all CPU, CPU seconds per episode, and the Amdahl bound 1 / (s + (1 - s) / N)
-  for that worker count and for 16 workers.
+  for that worker count and for 16 workers;
+- for collection, also the steady-state costs per episode from the collection record's timings: the writing
+  process's CPU while it wrote and a worker's CPU per episode; their ratio is how many workers one writer
+  keeps up with once start-up (the coordinator's imports, which overlap the workers' own) is over.
 
     python benchmarks/scale_workers.py --workers 2,4,8,16 --episodes 24 [--job collect|eval|both]
         [--task cube_handoff] [--condition stage] [--tree PATH] [--json FILE]
@@ -112,11 +115,29 @@ def run_once(job: str, args, workers: int, tmp: Path) -> dict:
         raise SystemExit(
             f"{job} with {workers} workers failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
     own = json.loads(stats.read_text())
+    per_episode = writer_costs(out) if job == "collect" else {}
     shutil.rmtree(out, ignore_errors=True)
     share = own["self_cpu_s"] / total if total > 0 else float("nan")
     return {"job": job, "workers": workers, "episodes": args.episodes, "wall_s": round(wall, 2),
             "coordinator_cpu_s": round(own["self_cpu_s"], 2), "total_cpu_s": round(total, 2),
-            "coordinator_share": round(share, 4), "cpu_s_per_episode": round(total / args.episodes, 3)}
+            "coordinator_share": round(share, 4), "cpu_s_per_episode": round(total / args.episodes, 3),
+            **per_episode}
+
+
+def writer_costs(root: Path) -> dict:
+    """Steady-state costs per episode from the collection record's timings (CPU seconds): the writing
+    process's while it wrote (its sessions, LeRobot's threads included) and a worker's (recording to staging).
+    Their ratio bounds the speed-up once start-up is over: the writer keeps up with at most that many
+    workers."""
+    record = json.loads((root / "meta" / "bavo_collection.json").read_text())
+    commits = record["runs"][-1]["timings"].get("commits", [])
+    episodes = [e for c in commits for e in c["episodes"]]
+    if not episodes:
+        return {}
+    writer = sum(c["cpu_s"] for c in commits) / len(episodes)
+    worker = sum(e.get("cpu_s", 0.0) for e in episodes) / len(episodes)
+    return {"writer_cpu_s_per_episode": round(writer, 3), "worker_cpu_s_per_episode": round(worker, 3),
+            "workers_one_writer_keeps_up_with": round(worker / writer, 1) if writer > 0 else None}
 
 
 def amdahl(share: float, workers: int) -> float:
@@ -159,6 +180,10 @@ def main() -> None:
                       f"{row['coordinator_cpu_s']:12.1f} "
                       f"{row['total_cpu_s']:10.1f} {row['cpu_s_per_episode']:9.2f} {100 * s:11.1f} % "
                       f"{row['amdahl_n']:10.2f} {row['amdahl_16']:11.2f}", flush=True)
+                if "writer_cpu_s_per_episode" in row:
+                    print(f"{'':14}per episode: writer {row['writer_cpu_s_per_episode']:.2f} s CPU, worker "
+                          f"{row['worker_cpu_s_per_episode']:.2f} s CPU -> one writer keeps up with "
+                          f"{row['workers_one_writer_keeps_up_with']} workers")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if args.json:

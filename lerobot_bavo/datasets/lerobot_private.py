@@ -47,6 +47,8 @@ offer:
    LeRobot's writer takes an episode's mp4 and frame statistics only from its streaming encoder
    (`DatasetWriter._streaming_encoder.finish_episode()`); `prebuilt_episode_videos` puts a `PrebuiltVideos`
    there, which hands over the worker's, so LeRobot still places the mp4 and records it as its own.
+   `deferred_stats_writes` keeps the dataset statistics LeRobot's metadata rewrites to `meta/stats.json`
+   after every episode (`dataset_metadata.write_stats`) until the session's end: the same last file.
 
 `check_private_api()` names every field and attribute used here; a test calls it, so an upgrade of
 LeRobot that renames one fails there with a message saying which, not deep inside a collection.
@@ -66,6 +68,7 @@ READER_FIELDS = ("_meta", "_image_transforms")  # DatasetReader internals the fa
 CONFIG_MODULE_ATTRIBUTES = ("tempfile",)  # lerobot.configs.policies
 FACTORY_MODULE_ATTRIBUTES = ("LeRobotDataset",)  # lerobot.datasets.factory
 WRITER_MODULE_ATTRIBUTES = ("embed_images", "compute_episode_stats", "datasets")
+METADATA_MODULE_ATTRIBUTES = ("write_stats",)  # lerobot.datasets.dataset_metadata
 # lerobot.datasets.compute_stats, read by the encoder thread
 STATS_MODULE_ATTRIBUTES = ("RunningQuantileStats",)
 STATS_FIELDS = ("_count", "_mean", "_mean_of_squares", "_min", "_max", "_histograms", "_bin_edges",
@@ -86,6 +89,7 @@ def check_private_api(dataset=None) -> None:
     import lerobot
     import lerobot.configs.policies as config_mod
     import lerobot.datasets.compute_stats as stats_mod
+    import lerobot.datasets.dataset_metadata as meta_mod
     import lerobot.datasets.dataset_writer as writer_mod
     import lerobot.datasets.factory as factory_mod
 
@@ -95,6 +99,8 @@ def check_private_api(dataset=None) -> None:
     missing += [
         f"lerobot.configs.policies.{a}" for a in CONFIG_MODULE_ATTRIBUTES if not hasattr(config_mod, a)
     ]
+    missing += [f"lerobot.datasets.dataset_metadata.{a}" for a in METADATA_MODULE_ATTRIBUTES
+                if not hasattr(meta_mod, a)]
     missing += [
         f"lerobot.datasets.factory.{a}" for a in FACTORY_MODULE_ATTRIBUTES if not hasattr(factory_mod, a)
     ]
@@ -239,7 +245,8 @@ class PrebuiltVideos:
 def prebuilt_episode_videos(dataset):
     """Within the block, `dataset`'s writer takes each episode's video from the `PrebuiltVideos` yielded
     (`put` before every `save_episode(episode_data=...)`) instead of encoding frames: the writer's private
-    `_streaming_encoder` is replaced, and restored afterwards."""
+    `_streaming_encoder` is replaced, and restored afterwards (so an episode fed frame by frame after the
+    block, e.g. one staged without a video, is encoded by LeRobot as usual)."""
     writer = dataset.writer
     original = writer._streaming_encoder
     videos = PrebuiltVideos()
@@ -248,6 +255,41 @@ def prebuilt_episode_videos(dataset):
         yield videos
     finally:
         writer._streaming_encoder = original
+
+
+class DeferredStatsWrite:
+    """The last `meta/stats.json` a writer session asked for, written by `flush` (see
+    `deferred_stats_writes`)."""
+
+    def __init__(self, write):
+        self._write = write
+        self._last: tuple | None = None
+
+    def __call__(self, stats, root) -> None:
+        self._last = (stats, root)
+
+    def flush(self) -> None:
+        if self._last is not None:
+            self._write(*self._last)
+            self._last = None
+
+
+@contextlib.contextmanager
+def deferred_stats_writes():
+    """Within the block, LeRobot's metadata keeps the dataset statistics it aggregates after every episode in
+    memory instead of rewriting `meta/stats.json` each time (a JSON dump of every feature's statistics, a
+    large share of the writer's remaining per-episode CPU, issue 30); `flush()` on the object yielded writes
+    the last one (call it before the session's commit point). Not flushed, nothing is written: an abandoned
+    session's statistics are restored from its snapshot anyway. Replaces `dataset_metadata.write_stats`."""
+    import lerobot.datasets.dataset_metadata as meta_mod
+
+    original = meta_mod.write_stats
+    deferred = DeferredStatsWrite(original)
+    meta_mod.write_stats = deferred
+    try:
+        yield deferred
+    finally:
+        meta_mod.write_stats = original
 
 
 class _ArrowDataset:

@@ -33,6 +33,7 @@ from lerobot_bavo.datasets.collection_record import PendingCommit
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
     arrow_episode_tables,
+    deferred_stats_writes,
     deferred_video_frame_stats,
     exact_fast_episode_stats,
     prebuilt_episode_videos,
@@ -94,10 +95,9 @@ class WriterSession:
             )
             self.first_index = self.ds.meta.total_episodes
             self._known_stats: dict = {}  # the next episode's statistics from its worker
-            self._videos = self._patches.enter_context(prebuilt_episode_videos(self.ds)) \
-                if cfg.use_videos else None
             self._patches.enter_context(skip_noop_image_embedding())
             self._patches.enter_context(exact_fast_episode_stats(self._known_stats))
+            self._stats_write = self._patches.enter_context(deferred_stats_writes())
             self._patches.enter_context(deferred_video_frame_stats())
             self._patches.enter_context(arrow_episode_tables())
         except BaseException:
@@ -138,7 +138,7 @@ class WriterSession:
         self._known_stats.clear()
         self._known_stats.update({k: v for k, v in stats.items() if k in cols})
         video = staged_video(session.staging, summary)
-        if video is not None and self._videos is not None:
+        if video is not None and session.cfg.use_videos:
             self._save_prebuilt(cols, n, video, stats.get(S.OBS_IMAGE))
         else:
             description = session.settings["task_description"]
@@ -188,8 +188,9 @@ class WriterSession:
             os.link(video, link)
         except OSError:
             shutil.copyfile(video, link)
-        self._videos.put({S.OBS_IMAGE: (link, video_stats)})
-        ds.save_episode(episode_data=buffer)
+        with prebuilt_episode_videos(ds) as videos:  # this episode only: others may come frame by frame
+            videos.put({S.OBS_IMAGE: (link, video_stats)})
+            ds.save_episode(episode_data=buffer)
 
     def close(self, next_seed: int | None = None) -> int:
         """Finalize, check the videos, record the episodes (the commit point), delete their staged files.
@@ -200,6 +201,7 @@ class WriterSession:
             next_seed = int(self.kept[-1]["seed"]) + 1 if self.kept else record.next_seed
         try:
             self.ds.finalize()
+            self._stats_write.flush()
             self._patches.close()
             # LeRobot's concatenated mp4s are 0600
             restore_default_mode(session.root.glob("videos/*/*/*.mp4"))

@@ -148,10 +148,14 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--{name} must be >= {low}, got {getattr(args, name)}")
     from lerobot_bavo import register_lerobot_types
     from lerobot_bavo.checkpoints import CheckpointMismatchError, UntrustedCheckpointError
+    from lerobot_bavo.eval.rollout import EXPERT_POLICIES
 
     # After the arguments are checked (`--help` and usage errors answer at once), before any worker is forked:
-    # the workers inherit LeRobot's "bavo" / "maniflow" / "afar" types instead of each importing them.
-    register_lerobot_types()
+    # the workers inherit LeRobot's "bavo" / "maniflow" / "afar" types instead of each importing them. A
+    # scripted expert needs neither LeRobot nor PyTorch: importing them (seconds of CPU) would only delay
+    # the workers' start and make this process the run's serial part (issue 30).
+    if args.grid is not None or args.policy not in EXPERT_POLICIES:
+        register_lerobot_types()
     if args.grid is not None:
         if (problem := executor_problem(args.executor, args.ray_address, args.workers)) is not None:
             raise SystemExit(f"bavo-eval: {problem}")

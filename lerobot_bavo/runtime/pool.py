@@ -67,6 +67,22 @@ class WorkerPool:
             return self._executor.map(fn, jobs)
         return (fn(job) for job in jobs)
 
+    def imap_unordered(self, fn: Callable[[dict], Any], jobs: Iterable[dict]) -> Iterator[Any]:
+        """Results of `fn` over `jobs` as each finishes (any order; callers key them, e.g. by seed). Every job
+        is queued at once, so a worker never waits on this process for its next one, and a result is handed
+        over as soon as it exists, not after those queued before it; the first failed job's exception is
+        raised and the jobs not started are cancelled. In-process: one job per result asked for."""
+        if self._executor is None:
+            yield from (fn(job) for job in jobs)
+            return
+        futures = [self._executor.submit(fn, job) for job in jobs]
+        try:
+            for fut in cf.as_completed(futures):
+                yield fut.result()
+        finally:
+            for fut in futures:
+                fut.cancel()
+
     def shutdown(self, cancel: bool = False, wait: bool = True) -> None:
         """Stop the workers; `cancel` drops queued jobs (after an error: don't run them first)."""
         if self._executor is not None:
