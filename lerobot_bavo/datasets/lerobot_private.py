@@ -28,7 +28,8 @@ offer:
    `Dataset.from_dict` builds the same Arrow table directly from the numpy columns (an order of magnitude
    faster) when every column is a plain number or a fixed-length list of numbers with exactly the feature's
    dtype, and calls the real `from_dict` otherwise; the written parquet files are the same bytes (tested). The
-   `datasets.Dataset` object differs in one thing, its `_fingerprint` (a hash of its in-memory buffers); only
+   `datasets.Dataset` object differs in one thing, its `_fingerprint` (`datasets` hashes the object, here it
+   is a random id, as hashing cost as much as building the table); only
    LeRobot's `embed_images` pass would write it into a file, and that pass is skipped within the block (item
    2; it is a no-op whenever the shortcut applies).
 
@@ -47,6 +48,7 @@ offer:
    LeRobot's writer takes an episode's mp4 and frame statistics only from its streaming encoder
    (`DatasetWriter._streaming_encoder.finish_episode()`); `prebuilt_episode_videos` puts a `PrebuiltVideos`
    there, which hands over the worker's, so LeRobot still places the mp4 and records it as its own.
+   `memoized_task_index` answers LeRobot's per-frame task-index lookups (a pandas `loc` each) from memory.
    `deferred_stats_writes` keeps the dataset statistics LeRobot's metadata rewrites to `meta/stats.json`
    after every episode (`dataset_metadata.write_stats`) until the session's end: the same last file.
 
@@ -257,6 +259,31 @@ def prebuilt_episode_videos(dataset):
         writer._streaming_encoder = original
 
 
+@contextlib.contextmanager
+def memoized_task_index(dataset):
+    """Within the block, `dataset.meta.get_task_index` answers a task it has answered before from memory.
+    LeRobot's `save_episode` looks the task of every frame up in a pandas table (`tasks.loc[task]`), hundreds
+    of lookups of one description per episode; a task's index never changes once it exists (tasks are only
+    added), and an unknown task (None) is not remembered. The instance attribute is removed afterwards."""
+    meta = dataset.meta
+    lookup = meta.get_task_index
+    known: dict[str, int] = {}
+
+    def get_task_index(task: str) -> int | None:
+        if task not in known:
+            index = lookup(task)
+            if index is None:
+                return None
+            known[task] = index
+        return known[task]
+
+    meta.get_task_index = get_task_index
+    try:
+        yield
+    finally:
+        del meta.get_task_index
+
+
 class DeferredStatsWrite:
     """The last `meta/stats.json` a writer session asked for, written by `flush` (see
     `deferred_stats_writes`)."""
@@ -298,14 +325,19 @@ class _ArrowDataset:
 
     @staticmethod
     def from_dict(mapping, features=None, info=None, split=None):
+        import uuid
+
         import datasets
         from datasets.table import InMemoryTable
 
         table = arrow_table_of(mapping, features) if info is None else None
         if table is None:
             return datasets.Dataset.from_dict(mapping, features=features, info=info, split=split)
+        # A fingerprint of our own: `datasets` would otherwise derive one by pickling the whole object (a
+        # large share of the writer's remaining per-episode CPU); nothing reads it here (see item 5)
         return datasets.Dataset(
-            InMemoryTable(table), info=datasets.DatasetInfo(features=features), split=split
+            InMemoryTable(table), info=datasets.DatasetInfo(features=features), split=split,
+            fingerprint=uuid.uuid4().hex,
         )
 
     def __getattr__(self, name):  # pragma: no cover - LeRobot's writer uses only from_dict

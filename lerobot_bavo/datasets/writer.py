@@ -36,6 +36,7 @@ from lerobot_bavo.datasets.lerobot_private import (
     deferred_stats_writes,
     deferred_video_frame_stats,
     exact_fast_episode_stats,
+    memoized_task_index,
     prebuilt_episode_videos,
     skip_noop_image_embedding,
 )
@@ -98,6 +99,7 @@ class WriterSession:
             self._patches.enter_context(skip_noop_image_embedding())
             self._patches.enter_context(exact_fast_episode_stats(self._known_stats))
             self._stats_write = self._patches.enter_context(deferred_stats_writes())
+            self._patches.enter_context(memoized_task_index(self.ds))
             self._patches.enter_context(deferred_video_frame_stats())
             self._patches.enter_context(arrow_episode_tables())
         except BaseException:
