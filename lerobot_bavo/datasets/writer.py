@@ -6,14 +6,20 @@ the commit pending in the collection record, `LeRobotDataset.resume`, append sta
 before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
 after the record says they are committed, so a rolled-back commit is redone from them by the next run.
 
-Why episode by episode (`StreamingWriter`): the writer is a large part of collection CPU (LeRobot's video
-stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at once, the
-2 x `--workers` attempts in flight ran out during the commit, and the last batch was written after every
-worker had finished, leaving cores idle. Now each kept episode is written as soon as it and every lower seed
-are resolved (quicker than the attempts in flight keep the workers busy for), into a session opened at the
-batch's first episode and closed at its last, so the sessions hold exactly the same episodes as before (the
-same files, the same record). Writing from a background thread instead was tried and gave the same wall time
-and CPU, so the simpler synchronous writer was kept (the measurements: docs/results/costs.md).
+What an episode costs here (issue 30): its worker has already encoded the video and computed the statistics
+(`episode_payload.py`), so `add` hands LeRobot one prepared buffer (`_save_prebuilt`) and LeRobot only assigns
+indices, writes the parquet rows and episode metadata and appends the mp4; an episode staged without a video
+(a dataset without video, `bavo-teleop`) is fed frame by frame as before, with its worker's statistics.
+
+Why episode by episode (`StreamingWriter`): the writer was a large part of collection CPU (LeRobot's video
+stream, parquet, statistics) before issue 30 moved most of it to the workers. When the main loop wrote a
+whole batch of `--commit-every` episodes at once, the 2 x `--workers` attempts in flight ran out during the
+commit, and the last batch was written after every worker had finished, leaving cores idle. Now each kept
+episode is written as soon as it and every lower seed are resolved (quicker than the attempts in flight keep
+the workers busy for), into a session opened at the batch's first episode and closed at its last, so the
+sessions hold exactly the same episodes as before (the same files, the same record). Writing from a
+background thread instead was tried and gave the same wall time and CPU, so the simpler synchronous writer
+was kept (the measurements: docs/results/costs.md).
 """
 
 from __future__ import annotations
