@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-STATS_PREFIX = "stats:"  # staged stats arrays are stored as "stats:<feature>:<statistic>"
+# the npz members holding an episode's statistics (`stats_to_arrays`)
+STATS_INDEX, STATS_DATA = "bavo_stats_index", "bavo_stats_data"
 
 
 def video_settings(rgb_encoder, encoder_threads: int | None, fps: int) -> dict:
@@ -118,19 +119,34 @@ def build_payload(columns: dict[str, np.ndarray], image_key: str, video: dict | 
 
 
 def stats_to_arrays(stats: dict[str, dict]) -> dict[str, np.ndarray]:
-    """Flatten {feature: {statistic: array}} for an npz file (keys keep their order)."""
-    return {f"{STATS_PREFIX}{feature}:{name}": np.asarray(value)
-            for feature, values in stats.items() for name, value in values.items()}
+    """{feature: {statistic: array}} as two npz members: every array's bytes one after the other, and a JSON
+    index (feature, statistic, dtype, shape per array, in order). Some 200 small arrays as npz members of
+    their own cost the writer ~0.07 s per episode to read back (a zip entry and a header to parse each)."""
+    import json
+
+    index, chunks = [], []
+    for feature, values in stats.items():
+        for name, value in values.items():
+            value = np.ascontiguousarray(value)
+            index.append([feature, name, value.dtype.str, list(value.shape)])
+            chunks.append(value.tobytes())
+    return {STATS_INDEX: np.frombuffer(json.dumps(index).encode(), dtype=np.uint8),
+            STATS_DATA: np.frombuffer(b"".join(chunks), dtype=np.uint8)}
 
 
 def stats_from_arrays(arrays: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
-    """Split npz contents into (columns, stats): the inverse of `stats_to_arrays` for the stats keys."""
-    columns: dict[str, np.ndarray] = {}
+    """Split npz contents into (columns, stats): the inverse of `stats_to_arrays` (the same dtypes, shapes,
+    bits and order); contents without stats give {}."""
+    import json
+
+    columns = {k: v for k, v in arrays.items() if k not in (STATS_INDEX, STATS_DATA)}
     stats: dict[str, dict] = {}
-    for key, value in arrays.items():
-        if key.startswith(STATS_PREFIX):
-            feature, name = key[len(STATS_PREFIX):].rsplit(":", 1)
+    if STATS_INDEX in arrays:
+        data, offset = arrays[STATS_DATA].tobytes(), 0
+        for feature, name, dtype, shape in json.loads(arrays[STATS_INDEX].tobytes()):
+            dtype = np.dtype(dtype)
+            count = int(np.prod(shape, dtype=np.int64))
+            value = np.frombuffer(data, dtype=dtype, count=count, offset=offset).reshape(shape).copy()
+            offset += count * dtype.itemsize
             stats.setdefault(feature, {})[name] = value
-        else:
-            columns[key] = value
     return columns, stats

@@ -27,11 +27,12 @@ offer:
    `with_format("arrow")[:]` of it. `arrow_episode_tables` gives LeRobot's writer module a `datasets` whose
    `Dataset.from_dict` builds the same Arrow table directly from the numpy columns (an order of magnitude
    faster) when every column is a plain number or a fixed-length list of numbers with exactly the feature's
-   dtype, and calls the real `from_dict` otherwise; the written parquet files are the same bytes (tested). The
-   `datasets.Dataset` object differs in one thing, its `_fingerprint` (`datasets` hashes the object, here it
-   is a random id, as hashing cost as much as building the table); only
-   LeRobot's `embed_images` pass would write it into a file, and that pass is skipped within the block (item
-   2; it is a no-op whenever the shortcut applies).
+   dtype, and calls the real `from_dict` otherwise; the written parquet files are the same bytes (tested).
+   It hands LeRobot an `_EpisodeTable`, not a `datasets.Dataset`: the three things the writer uses of it
+   (`features`, `len`, `with_format("arrow")[:]`); building a real one cost as much again (its fingerprint,
+   a hash of the whole object, its feature bookkeeping and a deep copy per `with_format`). Only LeRobot's
+   `embed_images` pass would use more (it would write the fingerprint into the file), and that pass is
+   skipped within the block (item 2; it is a no-op whenever the shortcut applies).
 
 6. Loading a policy config without litter. `PreTrainedConfig.from_pretrained` copies config.json into a
    `tempfile.NamedTemporaryFile(delete=False)` for draccus and never removes it: every checkpoint load left a
@@ -319,26 +320,44 @@ def deferred_stats_writes():
         meta_mod.write_stats = original
 
 
+class _EpisodeTable:
+    """What LeRobot's `_save_episode_data` uses of the `datasets.Dataset` it builds per episode, for a table
+    built directly in Arrow: `features` (read by the image-embedding pass, skipped within
+    `arrow_episode_tables`), `len()`, and `with_format("arrow")[:]`, the table it writes. A real
+    `datasets.Dataset` costs more to construct than the table (its feature bookkeeping, a deep copy per
+    `with_format`) and would only be thrown away."""
+
+    def __init__(self, table, features):
+        self.table, self.features = table, features
+
+    def __len__(self) -> int:
+        return self.table.num_rows
+
+    def with_format(self, type=None, **kwargs):  # noqa: A002 (datasets' signature)
+        if type != "arrow" or kwargs:
+            raise NotImplementedError(f"an episode table built in Arrow offers only with_format('arrow'), "
+                                      f"not {type!r} {kwargs}")
+        return self
+
+    def __getitem__(self, key):
+        if key != slice(None):
+            raise NotImplementedError(f"an episode table built in Arrow offers only [:], not [{key!r}]")
+        return self.table
+
+
 class _ArrowDataset:
     """`datasets.Dataset` as LeRobot's writer module sees it inside `arrow_episode_tables`: `from_dict` builds
-    the Arrow table directly where that gives exactly `datasets`' table (see `arrow_table_of`)."""
+    the Arrow table directly where that gives exactly `datasets`' table (see `arrow_table_of`), as an
+    `_EpisodeTable`, and calls `datasets.Dataset.from_dict` otherwise."""
 
     @staticmethod
     def from_dict(mapping, features=None, info=None, split=None):
-        import uuid
-
         import datasets
-        from datasets.table import InMemoryTable
 
         table = arrow_table_of(mapping, features) if info is None else None
         if table is None:
             return datasets.Dataset.from_dict(mapping, features=features, info=info, split=split)
-        # A fingerprint of our own: `datasets` would otherwise derive one by pickling the whole object (a
-        # large share of the writer's remaining per-episode CPU); nothing reads it here (see item 5)
-        return datasets.Dataset(
-            InMemoryTable(table), info=datasets.DatasetInfo(features=features), split=split,
-            fingerprint=uuid.uuid4().hex,
-        )
+        return _EpisodeTable(table, features)
 
     def __getattr__(self, name):  # pragma: no cover - LeRobot's writer uses only from_dict
         import datasets
