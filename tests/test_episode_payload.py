@@ -31,7 +31,9 @@ from lerobot_bavo.datasets.episode_payload import (
     video_frame_stats,
     video_settings,
 )
+from lerobot_bavo.datasets.frame_reductions import FrameReductions, downsample, episode_frame_reductions
 from lerobot_bavo.datasets.video_codec import encoder_threads, rgb_encoder
+from lerobot_bavo.datasets.video_stats import stats_from_reductions
 from lerobot_bavo.runtime.pool import WorkerPool
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,8 +53,9 @@ def _frames(n: int = 12, height: int = 240, width: int = 320) -> np.ndarray:
 @pytest.mark.parametrize("codec", ["h264", "libsvtav1"])
 def test_worker_video_and_its_statistics_are_what_lerobots_streaming_encoder_writes(codec, tmp_path):
     """The same frames through LeRobot's `StreamingVideoEncoder` (its own statistics class, no
-    replacement) and through `episode_payload`: the same mp4 bytes and the same raw statistics, bit for bit
-    (at 240 x 320, where LeRobot down-samples frames for statistics)."""
+    replacement) and through `episode_payload` (the worker's frame reductions, finished in the writer): the
+    same mp4 bytes and the same raw statistics, bit for bit (at 240 x 320, where LeRobot down-samples frames
+    for statistics), and the reductions survive staging."""
     from lerobot.datasets.video_utils import StreamingVideoEncoder
 
     frames = _frames()
@@ -66,10 +69,33 @@ def test_worker_video_and_its_statistics_are_what_lerobots_streaming_encoder_wri
     encode_video(frames, ours, video_settings(rgb_encoder(codec), encoder_threads(codec), S.FPS))
     assert ours.read_bytes() == Path(lerobot_path).read_bytes()
     stats = video_frame_stats(frames)
-    assert list(stats) == list(lerobot_stats)
+    _, staged = stats_from_arrays(stats_to_arrays({"f": episode_frame_reductions(frames).to_arrays()}))
+    restaged = stats_from_reductions(FrameReductions.from_arrays(staged["f"]))
+    assert list(stats) == list(lerobot_stats) == list(restaged)
     for key, value in lerobot_stats.items():
         assert stats[key].dtype == value.dtype and stats[key].shape == value.shape, key
-        assert np.array_equal(stats[key], value), key
+        assert np.array_equal(stats[key], value) and np.array_equal(restaged[key], value), key
+
+
+def test_a_worker_builds_the_payload_without_lerobot_or_pytorch(tmp_path):
+    """The worker side (encoding, frame reductions, column statistics) needs PyAV and numpy only: a spawned
+    collection worker stays light (`WorkerPool(light_import=True)`), ~2.8 s of CPU less per worker."""
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from lerobot_bavo.datasets.episode_payload import build_payload\n"
+        "frames = np.random.default_rng(0).integers(0, 255, (4, 48, 64, 3), dtype=np.uint8)\n"
+        "video = {'vcodec': 'h264', 'pix_fmt': 'yuv420p', 'fps': 25,\n"
+        "         'options': {'g': '2', 'crf': '20', 'preset': 'faster', 'threads': '1'}}\n"
+        "cols = {'observation.images.active': frames, 'action': np.zeros((4, 3), np.float32)}\n"
+        f"path = {str(tmp_path / 'v.mp4')!r}\n"
+        "staged, stats = build_payload(cols, 'observation.images.active', video, path)\n"
+        "assert sorted(stats) == ['action', 'observation.images.active'] and list(staged) == ['action']\n"
+        "print('IMPORTED', 'torch' in sys.modules, 'lerobot' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "IMPORTED False False" in out.stdout and (tmp_path / "v.mp4").stat().st_size > 0
 
 
 def test_worker_column_statistics_are_lerobots_and_survive_staging():
@@ -96,6 +122,14 @@ def test_worker_column_statistics_are_lerobots_and_survive_staging():
         for name, value in ref.items():
             for got in (stats[key][name], back[key][name]):
                 assert got.dtype == value.dtype and np.array_equal(got, value), (key, name)
+
+
+def test_downsampling_is_lerobots():
+    from lerobot.datasets.compute_stats import auto_downsample_height_width
+
+    for height, width in ((48, 64), (240, 320), (299, 200), (300, 200), (480, 640), (720, 1280), (640, 480)):
+        chw = np.zeros((3, height, width), dtype=np.uint8)
+        assert downsample(chw).shape == auto_downsample_height_width(chw).shape
 
 
 def _config(root: Path, **kw) -> CollectConfig:

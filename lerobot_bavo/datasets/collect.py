@@ -7,21 +7,15 @@ How it works:
 - Episodes are keyed by seed: attempt k uses seed `--seed` + k for the env (layout, occlusion
   schedule) and the expert (timing jitter). The dataset holds the first `--episodes` successful
   seeds, in seed order; unsuccessful attempts are discarded and counted.
-- Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no PyTorch or
-  LeRobot policy import: `WorkerPool(light_import=True)`) record an episode, compute its teacher targets,
+- Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no LeRobot or
+  PyTorch import: `WorkerPool(light_import=True)`) record an episode, compute its teacher targets,
   build everything about it that depends only on the episode (`episode_payload.py`: the active camera's mp4,
   encoded exactly as LeRobot's streaming encoder would with this run's codec settings, and the per-episode
   statistics) and stage it as `<root>/.bavo_staging/seed_*.mp4` and `seed_*.npz` plus a `seed_*.json` marker
   written last (atomic renames). The pool starts first, with one warm-up job per worker (`staging.warm_job`:
-  build the recorder and, with video, import LeRobot's statistics module the frame statistics need), and this
-  process imports LeRobot only when it opens the dataset (the `bavo-collect` command imports `lerobot_bavo`
-  without registering LeRobot types), so both set-ups run side by side. Workers and this process keep freed
-  memory for reuse (`runtime.process.retain_freed_memory`).
-- `--executor ray`: every episode rollout is a Ray task instead (on a private local Ray with `--workers`
-  CPUs, or the cluster at `--ray-address`), building the same per-episode parts. A Ray worker may be on
-  another machine, so it returns the staged files' bytes (mp4 and npz) and this process writes them into the
-  same staging folder; everything after
-  (the writer, resume, the record) is the same. A worker lost mid-episode is retried by Ray.
+  build the recorder), and this process imports LeRobot only when it opens the dataset (the `bavo-collect`
+  command imports `lerobot_bavo` without registering LeRobot types), so both set-ups run side by side.
+  Workers and this process keep freed memory for reuse (`runtime.process.retain_freed_memory`).
 - The main process is the only writer into the LeRobotDataset, and does only what must be serial: it
   appends each kept episode as soon as it and every lower seed are resolved (`writer.StreamingWriter`: one
   prepared buffer with the worker's video and statistics per episode; LeRobot assigns its indices, writes its
@@ -244,7 +238,7 @@ class Collector(DatasetSession):
         cfg = self.cfg
         return {"task": cfg.task, "condition": cfg.condition, "settings": cfg.settings.to_dict(),
                 "episode_length": cfg.episode_length, "keep_failures": cfg.keep_failures, "seed": seed,
-                "staging": str(self.staging), "use_videos": cfg.use_videos,
+                "staging": str(self.staging),
                 "video": self._video if seed >= 0 else None,
                 "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None}
 

@@ -10,8 +10,9 @@ episode, so the worker that recorded it builds them (`build_payload`) and stages
   thread encodes it (`video_utils.StreamingVideoEncoder`: the same codec options, pixel format, frame rate,
   frame timestamps), so the bytes are the same; the options come from the writer's `RGBEncoderConfig`
   (`video_settings`, computed where LeRobot is loaded) and travel in the job;
-- the raw image statistics LeRobot's encoder thread would compute while encoding (per channel, of every frame
-  down-sampled as LeRobot does), with `video_stats.DeferredFrameStats` (LeRobot's class, bit for bit);
+- nearly all of the image statistics LeRobot's encoder thread would compute while encoding: the per-frame
+  reductions of every frame down-sampled as LeRobot does (`frame_reductions.py`, numpy only); the writer
+  finishes them in LeRobot's class (`video_stats.stats_from_reductions`, a few ms), bit for bit;
 - the statistics of every numeric column, with `episode_stats.vector_stats` on the arrays LeRobot's writer
   would stack from the frames (bit for bit: the same function on the same arrays,
   `tests/test_episode_payload.py`).
@@ -21,8 +22,8 @@ The writer (`writer.WriterSession`) then hands LeRobot the episode as one buffer
 assigns the episode's indices, writes its parquet rows and metadata and appends the mp4 to its video file,
 which is all that is left in the writing process.
 
-The video statistics need LeRobot's `compute_stats` module, which imports PyTorch: a worker imports it once
-(in its warm-up job, beside the writer's own start-up) when the dataset stores video, and never otherwise.
+A worker imports neither LeRobot nor PyTorch for any of this (PyAV and numpy only): LeRobot's statistics
+module imports PyTorch, ~2.8 s of CPU per worker process, which is why the image statistics are split.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
+
+from lerobot_bavo.datasets.frame_reductions import episode_frame_reductions
 
 # the npz members holding an episode's statistics (`stats_to_arrays`)
 STATS_INDEX, STATS_DATA = "bavo_stats_index", "bavo_stats_data"
@@ -75,21 +78,13 @@ def encode_video(frames: np.ndarray, path: Path, settings: dict) -> None:
 
 
 def video_frame_stats(frames: np.ndarray) -> dict[str, np.ndarray] | None:
-    """The raw statistics LeRobot's streaming encoder thread reports for (T, H, W, C) uint8 frames (before
-    the writer scales them to [0, 1]): every frame down-sampled by `auto_downsample_height_width`, as
-    (pixels, C) rows, into one `RunningQuantileStats` (here `DeferredFrameStats`, the same bits). None for
-    fewer than 2 frames, as LeRobot."""
-    from lerobot.datasets.compute_stats import auto_downsample_height_width
+    """The raw statistics LeRobot's streaming encoder thread reports for (T, H, W, C) uint8 frames (before the
+    writer scales them to [0, 1]), None for fewer than 2 frames as LeRobot. Where LeRobot is loaded (the
+    writer, tests); a worker stages `frame_reductions.episode_frame_reductions` instead."""
+    from lerobot_bavo.datasets.video_stats import stats_from_reductions
 
-    from lerobot_bavo.datasets.video_stats import DeferredFrameStats
-
-    if frames.shape[0] < 2:
-        return None
-    tracker = DeferredFrameStats()
-    for rgb in frames:
-        small = auto_downsample_height_width(rgb.transpose(2, 0, 1))  # CHW, as LeRobot hands it over
-        tracker.update(small.transpose(1, 2, 0).reshape(-1, small.shape[0]))
-    return tracker.get_statistics()
+    reductions = episode_frame_reductions(frames)
+    return None if reductions is None else stats_from_reductions(reductions)
 
 
 def column_stats(columns: dict[str, np.ndarray], skip: tuple[str, ...] = ()) -> dict[str, dict]:
@@ -105,16 +100,17 @@ def column_stats(columns: dict[str, np.ndarray], skip: tuple[str, ...] = ()) -> 
 def build_payload(columns: dict[str, np.ndarray], image_key: str, video: dict | None,
                   video_path: Path | None) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
     """The episode's staged columns and its statistics. With `video` (settings from `video_settings`), the
-    `image_key` column is encoded to `video_path`, its raw statistics are returned under `image_key`, and it
-    is left out of the columns (the writer never needs the pixels)."""
+    `image_key` column is encoded to `video_path`, its frames' reductions (`frame_reductions`, from which the
+    writer finishes LeRobot's image statistics: `video_stats.stats_from_reductions`) are returned under
+    `image_key`, and it is left out of the columns (the writer never needs the pixels)."""
     stats = column_stats(columns, skip=(image_key,))
     if video is None:
         return columns, stats
     frames = columns[image_key]
     encode_video(frames, video_path, video)
-    raw = video_frame_stats(frames)
-    if raw is not None:
-        stats[image_key] = raw
+    reductions = episode_frame_reductions(frames)
+    if reductions is not None:
+        stats[image_key] = reductions.to_arrays()
     return {k: v for k, v in columns.items() if k != image_key}, stats
 
 

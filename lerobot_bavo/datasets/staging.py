@@ -87,11 +87,8 @@ def _recorder(job: dict):
 def warm_job(job: dict) -> None:
     """Build this worker's recorder for `job` without recording anything: `bavo-collect` sends one per worker
     before its own start-up (importing LeRobot, opening the dataset: seconds of one core), so the workers'
-    set-up (imports, model, GL contexts) runs meanwhile instead of after it. With `job["use_videos"]`, also
-    import what the video statistics need (`episode_payload`: LeRobot's statistics module)."""
+    set-up (imports, model, GL contexts) runs meanwhile instead of after it."""
     _recorder(job)
-    if job.get("use_videos"):
-        import lerobot.datasets.compute_stats  # noqa: F401  (once per worker, during the writer's start-up)
 
 
 def run_job(job: dict) -> dict:

@@ -36,6 +36,7 @@ import numpy as np
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import CollectionError
 from lerobot_bavo.datasets.collection_record import PendingCommit
+from lerobot_bavo.datasets.frame_reductions import FrameReductions
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
     arrow_episode_tables,
@@ -147,7 +148,12 @@ class WriterSession:
         self._known_stats.update({k: v for k, v in stats.items() if k in cols})
         video = staged_video(session.staging, summary)
         if video is not None and session.cfg.use_videos:
-            self._save_prebuilt(cols, n, video, stats.get(S.OBS_IMAGE))
+            from lerobot_bavo.datasets.video_stats import stats_from_reductions  # imports LeRobot
+
+            reductions = stats.get(S.OBS_IMAGE)
+            frame_stats = None if reductions is None else \
+                stats_from_reductions(FrameReductions.from_arrays(reductions))
+            self._save_prebuilt(cols, n, video, frame_stats)
         else:
             description = session.settings["task_description"]
             for t in range(n):
