@@ -12,8 +12,9 @@ with `bavo-view --rrd FILE`; `--rerun <output-dir>/videos` puts them next to the
 camera, RGB, occluder, visibility, progress, milestones and the policy's predicted action chunks, all
 from the rollout's own observations and info.
 
-Resumable: finished episodes (and so finished cells) found in --output-dir are kept, and only
-missing ones run; the run is keyed on a digest of the checkpoint's files (not its path: a moved
+Resumable: each episode's record is appended to episodes.jsonl as soon as the episode ends (completion
+order, whichever worker ran it); finished episodes (and so finished cells) found in --output-dir are kept,
+and only missing ones run; the run is keyed on a digest of the checkpoint's files (not its path: a moved
 checkpoint resumes, one replaced at the same path is refused instead of mixed in), and every
 record carries that digest. A torn last line of episodes.jsonl (a full disk, a kill mid-write) is
 dropped with a warning; one run at a time may write an output folder (a lock on its real path).

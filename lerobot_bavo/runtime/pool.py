@@ -7,7 +7,9 @@ its GL contexts, an expert recorder, a policy). Both need the same things: `init
 to keep the set-up between jobs without rebuilding it per episode.
 
 - `WorkerPool(workers)`: `workers == 0` runs every job in the calling process (`submit` runs it at
-  once; `imap` runs one job per item consumed, so results can be written as they come); `workers >= 1`
+  once; `imap` / `imap_unordered` run one job per item consumed, so results can be written as they come);
+  with workers, `imap` gives results in job order and `imap_unordered` as jobs finish (`bavo-eval`: no
+  record waits for a slower episode submitted before it); `workers >= 1`
   uses a `ProcessPoolExecutor` of that many processes, started with `start_method` ("spawn" by
   default: a fresh interpreter, no GL context or torch thread pool inherited from the parent; `None`
   is the platform's default, "fork" on Linux, which `bavo-eval` keeps so that a job function replaced
