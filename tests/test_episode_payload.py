@@ -117,7 +117,8 @@ def test_worker_column_statistics_are_lerobots_and_survive_staging():
     data, features = writer_stats_inputs({k: v for k, v in columns.items() if k != S.OBS_IMAGE})
     reference = compute_episode_stats(data, features)
     assert list(stats) == list(reference)
-    _, back = stats_from_arrays(stats_to_arrays(stats))
+    _, back = stats_from_arrays(stats_to_arrays({**stats, "scalar": {"n": np.asarray(7)}}))
+    assert back["scalar"]["n"].shape == () and int(back["scalar"]["n"]) == 7
     for key, ref in reference.items():
         for name, value in ref.items():
             for got in (stats[key][name], back[key][name]):

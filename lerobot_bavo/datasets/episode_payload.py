@@ -123,9 +123,9 @@ def stats_to_arrays(stats: dict[str, dict]) -> dict[str, np.ndarray]:
     index, chunks = [], []
     for feature, values in stats.items():
         for name, value in values.items():
-            value = np.ascontiguousarray(value)
+            value = np.asarray(value)  # (not ascontiguousarray: it would make a 0-d array 1-d)
             index.append([feature, name, value.dtype.str, list(value.shape)])
-            chunks.append(value.tobytes())
+            chunks.append(value.tobytes(order="C"))
     return {STATS_INDEX: np.frombuffer(json.dumps(index).encode(), dtype=np.uint8),
             STATS_DATA: np.frombuffer(b"".join(chunks), dtype=np.uint8)}
 
