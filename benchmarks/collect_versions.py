@@ -4,7 +4,8 @@ The machines are noisy (the same 100-episode run differs by ~5 % from one hour t
 collection is judged by runs of both versions alternating in one sitting. This checks the other commit out
 in a temporary git worktree, then runs N-episode collections (the package imported from each tree in turn,
 fresh folders, `--workers` processes), `--repeats` times each, alternating which goes first, and prints the
-wall time and the CPU time (the process and its workers) of every run and the ratios of the means.
+wall time and the CPU time (the process and its workers, every descendant counted: this script is a child
+subreaper, as `scale_workers.py`) of every run and the ratios of the means.
 
     python benchmarks/collect_versions.py --baseline f90bc49 [--episodes 30] [--repeats 2] [--task
     cube_handoff]
@@ -22,6 +23,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from scale_workers import become_subreaper, reap_all  # this folder (run as a script)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -58,6 +61,7 @@ def run_once(tree: Path, args, root: Path) -> tuple[float, float]:
         stderr=subprocess.DEVNULL,
     )
     wall = time.perf_counter() - t0
+    reap_all()  # workers that outlived the run (orphans re-parented here): their CPU counts too
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
 
@@ -71,6 +75,7 @@ def main() -> None:
     ap.add_argument("--condition", default="stage")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
+    become_subreaper()
 
     tmp = Path(tempfile.mkdtemp(prefix="bavo_versions_"))
     baseline_tree = tmp / "baseline"

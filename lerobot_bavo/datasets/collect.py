@@ -8,20 +8,20 @@ How it works:
   schedule) and the expert (timing jitter). The dataset holds the first `--episodes` successful
   seeds, in seed order; unsuccessful attempts are discarded and counted.
 - Worker processes (`--workers`, spawn, one env + expert + renderer each, one BLAS thread, no LeRobot or
-  PyTorch import: `WorkerPool(light_import=True)`) record an episode, compute its teacher targets and stage it
-  as `<root>/.bavo_staging/seed_*.npz` plus a `seed_*.json` marker written last (atomic renames). The pool
-  starts first, with one warm-up job per worker (`staging.warm_job`: build the recorder), and this process
-  imports LeRobot only when it opens the dataset (the `bavo-collect` command imports `lerobot_bavo` without
-  registering LeRobot types), so both set-ups run side by side. Workers and this process keep freed memory
-  for reuse (`runtime.process.retain_freed_memory`).
-- `--executor ray`: every episode rollout is a Ray task instead (on a private local Ray with `--workers`
-  CPUs, or the cluster at `--ray-address`). A Ray worker may be on another machine, so it returns the
-  staged files' bytes and this process writes them into the same staging folder; everything after
-  (the writer, resume, the record) is the same. A worker lost mid-episode is retried by Ray.
-- The main process is the only writer into the LeRobotDataset. It appends each kept episode as soon as
-  it and every lower seed are resolved (`writer.StreamingWriter`; the attempts in flight keep the workers
-  busy meanwhile); every `--commit-every` episodes form one LeRobot writer session (`LeRobotDataset.resume`,
-  the episodes in seed order, `finalize()`), and only then are they recorded in
+  PyTorch import: `WorkerPool(light_import=True)`) record an episode, compute its teacher targets,
+  build everything about it that depends only on the episode (`episode_payload.py`: the active camera's mp4,
+  encoded exactly as LeRobot's streaming encoder would with this run's codec settings, and the per-episode
+  statistics) and stage it as `<root>/.bavo_staging/seed_*.mp4` and `seed_*.npz` plus a `seed_*.json` marker
+  written last (atomic renames). The pool starts first, with one warm-up job per worker (`staging.warm_job`:
+  build the recorder), and this process imports LeRobot only when it opens the dataset (the `bavo-collect`
+  command imports `lerobot_bavo` without registering LeRobot types), so both set-ups run side by side.
+  Workers and this process keep freed memory for reuse (`runtime.process.retain_freed_memory`).
+- The main process is the only writer into the LeRobotDataset, and does only what must be serial: it
+  appends each kept episode as soon as it and every lower seed are resolved (`writer.StreamingWriter`: one
+  prepared buffer with the worker's video and statistics per episode; LeRobot assigns its indices, writes its
+  parquet rows and appends the mp4; ~0.3 s of CPU against a worker's ~5 s per episode, so one writer keeps up
+  with ~15 workers: docs/results/costs.md); every `--commit-every` episodes form one LeRobot writer session
+  (`LeRobotDataset.resume`, the episodes in seed order, `finalize()`), and only then are they recorded in
   `meta/bavo_collection.json` (the collection record).
 - Resume: re-running the same command continues where a killed run stopped. LeRobot keeps its
   parquet writers open until `finalize()`, so a kill inside a commit leaves unreadable files. Each
@@ -40,7 +40,8 @@ How it works:
 Where each job lives: this module has the CLI and the run (`Collector`, `SeedScheduler`);
 `collect_config.py` the run's settings (`CollectConfig`); `session.py` the dataset-session API every writer
 of a dataset uses (`DatasetSession`: lock, open, stage, commit, finish; `bavo-teleop` too);
-`staging.py` records and stages one episode (the worker side); `writer.py` is the writer side (a commit's
+`staging.py` records and stages one episode (the worker side), with `episode_payload.py` (its video and
+statistics); `writer.py` is the writer side (a commit's
 writer session, fed episode by episode); `collection_record.py` is the record; `transaction.py`
 snapshots and rolls back a writer session; `lerobot_private.py` holds every use of LeRobot's private
 internals; `runtime/pool.py` is the worker pool `bavo-eval` uses too.
@@ -50,6 +51,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import functools
 import json
 import logging
 import os
@@ -58,14 +60,16 @@ import sys
 import time
 from pathlib import Path
 
+from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import (  # noqa: F401  (offered here too, where they were first)
     STAGING,
     CollectConfig,
     CollectionError,
 )
+from lerobot_bavo.datasets.episode_payload import video_settings
 from lerobot_bavo.datasets.session import DatasetSession
 from lerobot_bavo.datasets.staging import receive_shipped, run_job, ship_job, warm_job
-from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, quiet_libav
+from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, encoder_threads, quiet_libav, rgb_encoder
 from lerobot_bavo.datasets.writer import StreamingWriter
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
@@ -235,7 +239,17 @@ class Collector(DatasetSession):
         return {"task": cfg.task, "condition": cfg.condition, "settings": cfg.settings.to_dict(),
                 "episode_length": cfg.episode_length, "keep_failures": cfg.keep_failures, "seed": seed,
                 "staging": str(self.staging),
+                "video": self._video if seed >= 0 else None,
                 "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None}
+
+    @functools.cached_property
+    def _video(self) -> dict | None:
+        """The encoder settings a worker encodes the active camera's mp4 with (`episode_payload`): this run's
+        codec as the LeRobot writer uses it (known once the dataset is open); None without video."""
+        if not self.cfg.use_videos:
+            return None
+        codec = self.video_codec
+        return video_settings(rgb_encoder(codec), encoder_threads(codec), S.FPS)
 
     def _check_discards(self, total: int, limit: int, kept: int, bar) -> None:
         bar.set_postfix(discarded=total)

@@ -117,17 +117,25 @@ def writer_stats_inputs(columns: dict[str, np.ndarray]) -> tuple[dict[str, np.nd
 
 
 def compute_episode_stats(
-    episode_data: dict, features: dict, quantile_list: list[float] | None = None
+    episode_data: dict, features: dict, quantile_list: list[float] | None = None, known: dict | None = None
 ) -> dict:
-    """`lerobot.datasets.compute_stats.compute_episode_stats` with `vector_stats` for numeric features."""
+    """`lerobot.datasets.compute_stats.compute_episode_stats` with `vector_stats` for numeric features.
+
+    `known`: statistics already computed for some features (by the worker that recorded the episode, with
+    `vector_stats` on the same arrays: `episode_payload.column_stats`); they are used as they are, in the
+    order of `episode_data`, so the result is the same dict."""
     from lerobot.datasets import compute_stats as lerobot_stats
 
     if quantile_list is not None and tuple(quantile_list) != QUANTILES:
         return lerobot_stats.compute_episode_stats(episode_data, features, quantile_list)
+    known = known or {}
     stats = {}
     for key, data in episode_data.items():
         dtype = features[key]["dtype"]
         if dtype in {"string", "language"}:
+            continue
+        if key in known and dtype not in ("image", "video"):
+            stats[key] = known[key]
             continue
         if dtype in ("image", "video") or not isinstance(data, np.ndarray) or data.ndim not in (1, 2) \
                 or data.shape[0] < 2 or not (np.issubdtype(data.dtype, np.number) or data.dtype == bool):

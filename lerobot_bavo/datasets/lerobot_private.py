@@ -27,10 +27,12 @@ offer:
    `with_format("arrow")[:]` of it. `arrow_episode_tables` gives LeRobot's writer module a `datasets` whose
    `Dataset.from_dict` builds the same Arrow table directly from the numpy columns (an order of magnitude
    faster) when every column is a plain number or a fixed-length list of numbers with exactly the feature's
-   dtype, and calls the real `from_dict` otherwise; the written parquet files are the same bytes (tested). The
-   `datasets.Dataset` object differs in one thing, its `_fingerprint` (a hash of its in-memory buffers); only
-   LeRobot's `embed_images` pass would write it into a file, and that pass is skipped within the block (item
-   2; it is a no-op whenever the shortcut applies).
+   dtype, and calls the real `from_dict` otherwise; the written parquet files are the same bytes (tested).
+   It hands LeRobot an `_EpisodeTable`, not a `datasets.Dataset`: the three things the writer uses of it
+   (`features`, `len`, `with_format("arrow")[:]`); building a real one cost as much again (its fingerprint,
+   a hash of the whole object, its feature bookkeeping and a deep copy per `with_format`). Only LeRobot's
+   `embed_images` pass would use more (it would write the fingerprint into the file), and that pass is
+   skipped within the block (item 2; it is a no-op whenever the shortcut applies).
 
 6. Loading a policy config without litter. `PreTrainedConfig.from_pretrained` copies config.json into a
    `tempfile.NamedTemporaryFile(delete=False)` for draccus and never removes it: every checkpoint load left a
@@ -42,6 +44,14 @@ offer:
    `dataset_is_finalized`).
 8. A chunking policy's queue of actions still to execute (`_queues["action"]`, ACT's `_action_queue`),
    which `bavo-eval --rerun` records (`policy_action_queue`).
+9. Episodes whose video was encoded where they were recorded (issue 30: a `bavo-collect` worker encodes
+   the active camera's mp4 exactly as LeRobot's streaming encoder would, `datasets.episode_payload`).
+   LeRobot's writer takes an episode's mp4 and frame statistics only from its streaming encoder
+   (`DatasetWriter._streaming_encoder.finish_episode()`); `prebuilt_episode_videos` puts a `PrebuiltVideos`
+   there, which hands over the worker's, so LeRobot still places the mp4 and records it as its own.
+   `memoized_task_index` answers LeRobot's per-frame task-index lookups (a pandas `loc` each) from memory.
+   `deferred_stats_writes` keeps the dataset statistics LeRobot's metadata rewrites to `meta/stats.json`
+   after every episode (`dataset_metadata.write_stats`) until the session's end: the same last file.
 
 `check_private_api()` names every field and attribute used here; a test calls it, so an upgrade of
 LeRobot that renames one fails there with a message saying which, not deep inside a collection.
@@ -54,13 +64,14 @@ import contextlib
 import numpy as np
 
 # (what, where): the private names this module touches.
-WRITER_FIELDS = ("_pq_writer", "_finalized")
+WRITER_FIELDS = ("_pq_writer", "_finalized", "_streaming_encoder")
 META_FIELDS = ("_metadata_buffer", "_pq_writer", "_finalized")
 DATASET_FIELDS = ("_is_finalized",)
 READER_FIELDS = ("_meta", "_image_transforms")  # DatasetReader internals the fast data path reads
 CONFIG_MODULE_ATTRIBUTES = ("tempfile",)  # lerobot.configs.policies
 FACTORY_MODULE_ATTRIBUTES = ("LeRobotDataset",)  # lerobot.datasets.factory
 WRITER_MODULE_ATTRIBUTES = ("embed_images", "compute_episode_stats", "datasets")
+METADATA_MODULE_ATTRIBUTES = ("write_stats",)  # lerobot.datasets.dataset_metadata
 # lerobot.datasets.compute_stats, read by the encoder thread
 STATS_MODULE_ATTRIBUTES = ("RunningQuantileStats",)
 STATS_FIELDS = ("_count", "_mean", "_mean_of_squares", "_min", "_max", "_histograms", "_bin_edges",
@@ -81,6 +92,7 @@ def check_private_api(dataset=None) -> None:
     import lerobot
     import lerobot.configs.policies as config_mod
     import lerobot.datasets.compute_stats as stats_mod
+    import lerobot.datasets.dataset_metadata as meta_mod
     import lerobot.datasets.dataset_writer as writer_mod
     import lerobot.datasets.factory as factory_mod
 
@@ -90,6 +102,8 @@ def check_private_api(dataset=None) -> None:
     missing += [
         f"lerobot.configs.policies.{a}" for a in CONFIG_MODULE_ATTRIBUTES if not hasattr(config_mod, a)
     ]
+    missing += [f"lerobot.datasets.dataset_metadata.{a}" for a in METADATA_MODULE_ATTRIBUTES
+                if not hasattr(meta_mod, a)]
     missing += [
         f"lerobot.datasets.factory.{a}" for a in FACTORY_MODULE_ATTRIBUTES if not hasattr(factory_mod, a)
     ]
@@ -160,16 +174,19 @@ def skip_noop_image_embedding():
 
 
 @contextlib.contextmanager
-def exact_fast_episode_stats():
+def exact_fast_episode_stats(known: dict | None = None):
     """Within the block, LeRobot's writer computes per-episode statistics with
     `lerobot_bavo.datasets.episode_stats.compute_episode_stats` (equal to LeRobot's, without per-dimension
-    histograms)."""
+    histograms), taking the statistics in `known` (feature -> statistics; the caller fills it before each
+    `save_episode`, e.g. with a worker's) as they are."""
+    import functools
+
     import lerobot.datasets.dataset_writer as writer_mod
 
     from lerobot_bavo.datasets.episode_stats import compute_episode_stats
 
     original = writer_mod.compute_episode_stats
-    writer_mod.compute_episode_stats = compute_episode_stats
+    writer_mod.compute_episode_stats = functools.partial(compute_episode_stats, known=known)
     try:
         yield
     finally:
@@ -196,21 +213,151 @@ def deferred_video_frame_stats():
         stats_mod.RunningQuantileStats = original
 
 
+class PrebuiltVideos:
+    """Stands in for a writer's `StreamingVideoEncoder` when every episode's video was encoded elsewhere (a
+    `bavo-collect` worker, `episode_payload`): `finish_episode` hands LeRobot's `save_episode` the mp4 and raw
+    frame statistics set by `put`, as the streaming encoder would hand over its own."""
+
+    def __init__(self):
+        self._next: dict | None = None
+
+    def put(self, videos: dict) -> None:
+        """The next episode's {video_key: (mp4 path in a folder of its own, raw statistics or None)}; LeRobot
+        moves or appends the mp4 into the dataset and deletes its folder."""
+        self._next = videos
+
+    def start_episode(self, *args, **kwargs) -> None:  # noqa: ARG002 (the encoder's interface)
+        raise RuntimeError("PrebuiltVideos takes encoded episodes only (save_episode with episode_data)")
+
+    feed_frame = start_episode
+
+    def finish_episode(self) -> dict:
+        if self._next is None:
+            raise RuntimeError("save_episode without a prebuilt video (PrebuiltVideos.put was not called)")
+        videos, self._next = self._next, None
+        return videos
+
+    def cancel_episode(self) -> None:
+        self._next = None
+
+    def close(self) -> None:
+        self._next = None
+
+
+@contextlib.contextmanager
+def prebuilt_episode_videos(dataset):
+    """Within the block, `dataset`'s writer takes each episode's video from the `PrebuiltVideos` yielded
+    (`put` before every `save_episode(episode_data=...)`) instead of encoding frames: the writer's private
+    `_streaming_encoder` is replaced, and restored afterwards (so an episode fed frame by frame after the
+    block, e.g. one staged without a video, is encoded by LeRobot as usual)."""
+    writer = dataset.writer
+    original = writer._streaming_encoder
+    videos = PrebuiltVideos()
+    writer._streaming_encoder = videos
+    try:
+        yield videos
+    finally:
+        writer._streaming_encoder = original
+
+
+@contextlib.contextmanager
+def memoized_task_index(dataset):
+    """Within the block, `dataset.meta.get_task_index` answers a task it has answered before from memory.
+    LeRobot's `save_episode` looks the task of every frame up in a pandas table (`tasks.loc[task]`), hundreds
+    of lookups of one description per episode; a task's index never changes once it exists (tasks are only
+    added), and an unknown task (None) is not remembered. The instance attribute is removed afterwards."""
+    meta = dataset.meta
+    lookup = meta.get_task_index
+    known: dict[str, int] = {}
+
+    def get_task_index(task: str) -> int | None:
+        if task not in known:
+            index = lookup(task)
+            if index is None:
+                return None
+            known[task] = index
+        return known[task]
+
+    meta.get_task_index = get_task_index
+    try:
+        yield
+    finally:
+        del meta.get_task_index
+
+
+class DeferredStatsWrite:
+    """The last `meta/stats.json` a writer session asked for, written by `flush` (see
+    `deferred_stats_writes`)."""
+
+    def __init__(self, write):
+        self._write = write
+        self._last: tuple | None = None
+
+    def __call__(self, stats, root) -> None:
+        self._last = (stats, root)
+
+    def flush(self) -> None:
+        if self._last is not None:
+            self._write(*self._last)
+            self._last = None
+
+
+@contextlib.contextmanager
+def deferred_stats_writes():
+    """Within the block, LeRobot's metadata keeps the dataset statistics it aggregates after every episode in
+    memory instead of rewriting `meta/stats.json` each time (a JSON dump of every feature's statistics, a
+    large share of the writer's remaining per-episode CPU, issue 30); `flush()` on the object yielded writes
+    the last one (call it before the session's commit point). Not flushed, nothing is written: an abandoned
+    session's statistics are restored from its snapshot anyway. Replaces `dataset_metadata.write_stats`."""
+    import lerobot.datasets.dataset_metadata as meta_mod
+
+    original = meta_mod.write_stats
+    deferred = DeferredStatsWrite(original)
+    meta_mod.write_stats = deferred
+    try:
+        yield deferred
+    finally:
+        meta_mod.write_stats = original
+
+
+class _EpisodeTable:
+    """What LeRobot's `_save_episode_data` uses of the `datasets.Dataset` it builds per episode, for a table
+    built directly in Arrow: `features` (read by the image-embedding pass, skipped within
+    `arrow_episode_tables`), `len()`, and `with_format("arrow")[:]`, the table it writes. A real
+    `datasets.Dataset` costs more to construct than the table (its feature bookkeeping, a deep copy per
+    `with_format`) and would only be thrown away."""
+
+    def __init__(self, table, features):
+        self.table, self.features = table, features
+
+    def __len__(self) -> int:
+        return self.table.num_rows
+
+    def with_format(self, type=None, **kwargs):  # noqa: A002 (datasets' signature)
+        if type != "arrow" or kwargs:
+            raise NotImplementedError(f"an episode table built in Arrow offers only with_format('arrow'), "
+                                      f"not {type!r} {kwargs}")
+        return self
+
+    def __getitem__(self, key):
+        if key != slice(None):
+            raise NotImplementedError(f"an episode table built in Arrow offers only [:], not [{key!r}]")
+        return self.table
+
+
 class _ArrowDataset:
     """`datasets.Dataset` as LeRobot's writer module sees it inside `arrow_episode_tables`: `from_dict` builds
-    the Arrow table directly where that gives exactly `datasets`' table (see `arrow_table_of`)."""
+    the Arrow table directly where that gives exactly `datasets`' table (see `arrow_table_of`), as an
+    `_EpisodeTable`, and calls `datasets.Dataset.from_dict` otherwise."""
 
     @staticmethod
     def from_dict(mapping, features=None, info=None, split=None):
         import datasets
-        from datasets.table import InMemoryTable
 
         table = arrow_table_of(mapping, features) if info is None else None
         if table is None:
             return datasets.Dataset.from_dict(mapping, features=features, info=info, split=split)
-        return datasets.Dataset(
-            InMemoryTable(table), info=datasets.DatasetInfo(features=features), split=split
-        )
+        return _EpisodeTable(table, features)
 
     def __getattr__(self, name):  # pragma: no cover - LeRobot's writer uses only from_dict
         import datasets

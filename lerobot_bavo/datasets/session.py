@@ -19,7 +19,7 @@ from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import STAGING, CollectConfig, CollectionError
 from lerobot_bavo.datasets.collection_record import CollectionRecord
 from lerobot_bavo.datasets.metadata import SIDECAR
-from lerobot_bavo.datasets.staging import seed_of, staged_path
+from lerobot_bavo.datasets.staging import STAGED_SUFFIXES, seed_of, staged_path, staged_video
 from lerobot_bavo.datasets.transaction import SnapshotMissing, WriterSessionSnapshot, remove_stray_dirs
 from lerobot_bavo.datasets.verify import check_committed_files
 from lerobot_bavo.datasets.video_codec import DEFAULT_VIDEO_CODEC, recorded_video_codec, rgb_encoder
@@ -192,17 +192,20 @@ class DatasetSession:
                 self.drop_staged(seed)
                 continue
             summary = json.loads(p.read_text())
-            if summary.get("kept") and not staged_path(self.staging, seed, ".npz").exists():
+            video = staged_video(self.staging, summary)
+            if summary.get("kept") and (not staged_path(self.staging, seed, ".npz").exists()
+                                        or (video is not None and not video.exists())):
                 p.unlink()  # marker without data: redo the episode
                 continue
             found[seed] = summary
-        for p in self.staging.glob("seed_*.npz"):
-            if seed_of(p) not in found:
-                p.unlink()
+        for suffix in STAGED_SUFFIXES[:-1]:
+            for p in self.staging.glob(f"seed_*{suffix}"):
+                if seed_of(p) not in found:
+                    p.unlink()
         return found
 
     def drop_staged(self, seed: int) -> None:
-        for suffix in (".npz", ".json"):
+        for suffix in STAGED_SUFFIXES:
             staged_path(self.staging, seed, suffix).unlink(missing_ok=True)
 
     # -------------------------------------------------------------- commit

@@ -37,15 +37,16 @@ from __future__ import annotations
 import numpy as np
 from lerobot.datasets.compute_stats import RunningQuantileStats
 
-# frames reduced at a time in the replay (bounds its buffers: 32 frames x 57,600 values x 5 bytes)
-FRAME_CHUNK = 32
+from lerobot_bavo.datasets.frame_reductions import FrameReductions, reduce_frames, reducible
+
 # every value a uint8 pixel can take, as the float32 batch holds it
 _VALUES = np.arange(256, dtype=np.float32)
 
 
 class DeferredFrameStats(RunningQuantileStats):
     """`RunningQuantileStats` with uint8 updates deferred to `get_statistics` (same statistics, bit for
-    bit)."""
+    bit). `add_reductions` takes frames already reduced elsewhere (`frame_reductions.reduce_frames`, in a
+    `bavo-collect` worker)."""
 
     def __init__(self, quantile_list: list[float] | None = None, num_quantile_bins: int = 5000):
         super().__init__(quantile_list, num_quantile_bins)
@@ -54,7 +55,7 @@ class DeferredFrameStats(RunningQuantileStats):
     def update(self, batch: np.ndarray) -> None:
         batch = np.asarray(batch)
         rows = batch.reshape(-1, batch.shape[-1])
-        if not _deferrable(rows):
+        if not reducible(rows):
             self._replay()  # keep the original order of updates
             super().update(batch)
             return
@@ -72,39 +73,22 @@ class DeferredFrameStats(RunningQuantileStats):
             return
         frames = np.stack(self._pending)  # (F, N, C) uint8
         self._pending = []
-        n_frames, n, channels = frames.shape
-        frame_min = np.empty((n_frames, channels), dtype=np.float32)
-        frame_max = np.empty((n_frames, channels), dtype=np.float32)
-        frame_mean = np.empty((n_frames, channels), dtype=np.float32)
-        frame_mean_sq = np.empty((n_frames, channels), dtype=np.float32)
-        # Frames side by side as lanes: (N, frames x C), so that a reduction over axis 0 is the row-after-row
-        # float32 sum numpy does for one (N, C) frame, for many frames at once. Buffers are reused across
-        # chunks.
-        lanes_u8 = np.empty((n, FRAME_CHUNK * channels), dtype=np.uint8)
-        lanes = np.empty((n, FRAME_CHUNK * channels), dtype=np.float32)
-        for start in range(0, n_frames, FRAME_CHUNK):
-            k = min(FRAME_CHUNK, n_frames - start)
-            u8 = lanes_u8[:, :k * channels]
-            f32 = lanes[:, :k * channels]
-            np.copyto(u8.reshape(n, k, channels), frames[start:start + k].transpose(1, 0, 2))
-            np.copyto(f32, u8)
-            done = slice(start, start + k)
-            frame_min[done] = u8.min(axis=0).reshape(k, channels)
-            frame_max[done] = u8.max(axis=0).reshape(k, channels)
-            frame_mean[done] = np.add.reduce(f32, axis=0).reshape(k, channels)
-            np.multiply(f32, f32, out=f32)
-            frame_mean_sq[done] = np.add.reduce(f32, axis=0).reshape(k, channels)
-        count = np.intp(n)  # what np.mean divides by
-        np.true_divide(frame_mean, count, out=frame_mean, casting="unsafe")
-        np.true_divide(frame_mean_sq, count, out=frame_mean_sq, casting="unsafe")
+        self.add_reductions(reduce_frames(frames))
 
+    def add_reductions(self, red: FrameReductions) -> None:
+        """LeRobot's `update` of each reduced frame, in order (after any kept frames): the running mean, mean
+        of squares, count and range per frame; the histograms of each run of frames between range changes
+        at once, from the frames' value counts."""
+        self._replay()
+        n_frames, channels = red.frame_mean.shape
+        n = red.pixels
         run_start = 0  # first frame not yet added to the histograms
         for f in range(n_frames):
             if self._count == 0:
-                self._mean = frame_mean[f].copy()
-                self._mean_of_squares = frame_mean_sq[f].copy()
-                self._min = frame_min[f].copy()
-                self._max = frame_max[f].copy()
+                self._mean = red.frame_mean[f].copy()
+                self._mean_of_squares = red.frame_mean_sq[f].copy()
+                self._min = red.frame_min[f].copy()
+                self._max = red.frame_max[f].copy()
                 self._histograms = [np.zeros(self._num_quantile_bins) for _ in range(channels)]
                 self._bin_edges = [
                     np.linspace(self._min[i] - 1e-10, self._max[i] + 1e-10, self._num_quantile_bins + 1)
@@ -115,33 +99,34 @@ class DeferredFrameStats(RunningQuantileStats):
                     raise ValueError(
                         "The length of new vectors does not match the initialized vector length."
                     )
-                new_max, new_min = frame_max[f], frame_min[f]
+                new_max, new_min = red.frame_max[f], red.frame_min[f]
                 max_changed = np.any(new_max > self._max)
                 min_changed = np.any(new_min < self._min)
                 self._max = np.maximum(self._max, new_max)
                 self._min = np.minimum(self._min, new_min)
                 if max_changed or min_changed:
-                    self._add_to_histograms(frames[run_start:f])
+                    self._add_to_histograms(red.frame_counts[run_start:f])
                     run_start = f
                     self._adjust_histograms()
             self._count += n
-            self._mean += (frame_mean[f] - self._mean) * (n / self._count)
-            self._mean_of_squares += (frame_mean_sq[f] - self._mean_of_squares) * (n / self._count)
-        self._add_to_histograms(frames[run_start:])
+            self._mean += (red.frame_mean[f] - self._mean) * (n / self._count)
+            self._mean_of_squares += (red.frame_mean_sq[f] - self._mean_of_squares) * (n / self._count)
+        self._add_to_histograms(red.frame_counts[run_start:])
 
-    def _add_to_histograms(self, frames: np.ndarray) -> None:
-        """Add (F, N, C) uint8 frames to the histograms with the current edges (one weighted histogram per
-        channel)."""
-        if frames.shape[0] == 0:
+    def _add_to_histograms(self, frame_counts: np.ndarray) -> None:
+        """Add frames to the histograms with the current edges, from their (F, C, 256) value counts (one
+        weighted histogram of the 256 values per channel)."""
+        if frame_counts.shape[0] == 0:
             return
-        for i in range(frames.shape[2]):
-            counts = np.bincount(frames[:, :, i].ravel(), minlength=256).astype(np.float64)
-            hist, _ = np.histogram(_VALUES, bins=self._bin_edges[i], weights=counts)
+        totals = frame_counts.sum(axis=0)
+        for i in range(totals.shape[0]):
+            hist, _ = np.histogram(_VALUES, bins=self._bin_edges[i], weights=totals[i].astype(np.float64))
             self._histograms[i] += hist
 
 
-def _deferrable(rows: np.ndarray) -> bool:
-    """A batch the replay reproduces exactly: uint8 (N, C) with C >= 2. With one channel numpy's mean runs
-    along the contiguous axis, which it sums pairwise, not row after row, so such batches stay with
-    LeRobot."""
-    return rows.dtype == np.uint8 and rows.ndim == 2 and rows.shape[0] > 0 and rows.shape[1] >= 2
+def stats_from_reductions(red: FrameReductions) -> dict[str, np.ndarray]:
+    """LeRobot's statistics of frames reduced elsewhere (`frame_reductions.episode_frame_reductions`): what
+    its streaming encoder thread reports for them."""
+    tracker = DeferredFrameStats()
+    tracker.add_reductions(red)
+    return tracker.get_statistics()

@@ -6,40 +6,55 @@ the commit pending in the collection record, `LeRobotDataset.resume`, append sta
 before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
 after the record says they are committed, so a rolled-back commit is redone from them by the next run.
 
-Why episode by episode (`StreamingWriter`): the writer is a large part of collection CPU (LeRobot's video
-stream, parquet, statistics). When the main loop wrote a whole batch of `--commit-every` episodes at once, the
-2 x `--workers` attempts in flight ran out during the commit, and the last batch was written after every
-worker had finished, leaving cores idle. Now each kept episode is written as soon as it and every lower seed
-are resolved (quicker than the attempts in flight keep the workers busy for), into a session opened at the
-batch's first episode and closed at its last, so the sessions hold exactly the same episodes as before (the
-same files, the same record). Writing from a background thread instead was tried and gave the same wall time
-and CPU, so the simpler synchronous writer was kept (the measurements: docs/results/costs.md).
+What an episode costs here (issue 30): its worker has already encoded the video and computed the statistics
+(`episode_payload.py`), so `add` hands LeRobot one prepared buffer (`_save_prebuilt`) and LeRobot only assigns
+indices, writes the parquet rows and episode metadata and appends the mp4; an episode staged without a video
+(a dataset without video, `bavo-teleop`) is fed frame by frame as before, with its worker's statistics.
+
+Why episode by episode (`StreamingWriter`): the writer was a large part of collection CPU (LeRobot's video
+stream, parquet, statistics) before issue 30 moved most of it to the workers. When the main loop wrote a
+whole batch of `--commit-every` episodes at once, the 2 x `--workers` attempts in flight ran out during the
+commit, and the last batch was written after every worker had finished, leaving cores idle. Now each kept
+episode is written as soon as it and every lower seed are resolved (quicker than the attempts in flight keep
+the workers busy for), into a session opened at the batch's first episode and closed at its last, so the
+sessions hold exactly the same episodes as before (the same files, the same record). Writing from a
+background thread instead was tried and gave the same wall time and CPU, so the simpler synchronous writer
+was kept (the measurements: docs/results/costs.md).
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import shutil
 import time
+from pathlib import Path
+
+import numpy as np
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import CollectionError
 from lerobot_bavo.datasets.collection_record import PendingCommit
+from lerobot_bavo.datasets.frame_reductions import FrameReductions
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
     arrow_episode_tables,
+    deferred_stats_writes,
     deferred_video_frame_stats,
     exact_fast_episode_stats,
+    memoized_task_index,
+    prebuilt_episode_videos,
     skip_noop_image_embedding,
 )
-from lerobot_bavo.datasets.staging import load_staged
+from lerobot_bavo.datasets.staging import load_staged_payload, staged_video
 from lerobot_bavo.datasets.video_codec import encoder_threads, rgb_encoder
 from lerobot_bavo.runtime.files import restore_default_mode
 
 logger = logging.getLogger("bavo-collect")
 
 # what a worker reports about an episode's cost (`staging.stage_episode`), kept in the commit's timings
-WORKER_COST_KEYS = ("seed", "length", "episode_s", "teacher_s", "stage_s", "cpu_s")
+WORKER_COST_KEYS = ("seed", "length", "episode_s", "teacher_s", "payload_s", "stage_s", "cpu_s")
 ENCODER_QUEUE_SLACK = 16  # frames beyond the longest episode LeRobot's streaming encoder queue can hold
 
 
@@ -87,8 +102,11 @@ class WriterSession:
                 encoder_threads=encoder_threads(codec),
             )
             self.first_index = self.ds.meta.total_episodes
+            self._known_stats: dict = {}  # the next episode's statistics from its worker
             self._patches.enter_context(skip_noop_image_embedding())
-            self._patches.enter_context(exact_fast_episode_stats())
+            self._patches.enter_context(exact_fast_episode_stats(self._known_stats))
+            self._stats_write = self._patches.enter_context(deferred_stats_writes())
+            self._patches.enter_context(memoized_task_index(self.ds))
             self._patches.enter_context(deferred_video_frame_stats())
             self._patches.enter_context(arrow_episode_tables())
         except BaseException:
@@ -109,29 +127,84 @@ class WriterSession:
         self.discards.append(summary)
 
     def add(self, summary: dict) -> None:
-        """Append the staged episode of `summary` (add_frame per frame, save_episode)."""
+        """Append the staged episode of `summary`: as one prepared buffer when its worker encoded the video
+        (`_save_prebuilt`), else frame by frame (`add_frame`; datasets without video, `bavo-teleop`); either
+        way with the statistics its worker computed."""
         t0, c0 = time.perf_counter(), time.process_time()
         session, ds = self.session, self.ds
         seed = int(summary["seed"])
         # the record names the seeds this pending session holds (and the next seed if it closed now)
         session.record.pending_commit = PendingCommit([b["seed"] for b in self.kept] + [seed], seed + 1)
         session.save_record()
+        columns, stats = load_staged_payload(session.staging, seed)
         # a dataset begun before a newer optional annotation existed keeps its own features
-        cols = {k: v for k, v in load_staged(session.staging, seed).items()
-                if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
+        cols = {k: v for k, v in columns.items() if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
         n = cols[S.ACTION].shape[0]
         if n != summary["length"]:
             raise CollectionError(
                 f"staged episode seed {seed} has {n} frames, its marker says {summary['length']}"
             )
-        description = session.settings["task_description"]
-        for t in range(n):
-            frame = {k: v[t] for k, v in cols.items()}
-            frame["task"] = description
-            ds.add_frame(frame)
-        ds.save_episode()
+        self._known_stats.clear()
+        self._known_stats.update({k: v for k, v in stats.items() if k in cols})
+        video = staged_video(session.staging, summary)
+        if video is not None and session.cfg.use_videos:
+            from lerobot_bavo.datasets.video_stats import stats_from_reductions  # imports LeRobot
+
+            reductions = stats.get(S.OBS_IMAGE)
+            frame_stats = None if reductions is None else \
+                stats_from_reductions(FrameReductions.from_arrays(reductions))
+            self._save_prebuilt(cols, n, video, frame_stats)
+        else:
+            description = session.settings["task_description"]
+            for t in range(n):
+                frame = {k: v[t] for k, v in cols.items()}
+                frame["task"] = description
+                ds.add_frame(frame)
+            ds.save_episode()
+        self._known_stats.clear()
         self.kept.append(summary)
         self.timings.setdefault("episode_write_s", []).append(round(self._account(t0, c0), 3))
+
+    def _save_prebuilt(self, cols: dict, n: int, video, video_stats: dict | None) -> None:
+        """`save_episode` of one buffer holding the whole episode, with the worker's mp4 and frame statistics
+        (`lerobot_private.PrebuiltVideos`): what LeRobot's `add_frame` calls would have gathered (the same
+        keys in the same order, the same arrays; frame indices and timestamps as `add_frame` numbers them),
+        checked once with LeRobot's `validate_frame` on the first frame instead of on every frame."""
+        import tempfile
+
+        from lerobot.datasets.feature_utils import validate_frame
+
+        ds = self.ds
+        features = ds.meta.features
+        first = {k: v[0] for k, v in cols.items()}
+        first["task"] = description = self.session.settings["task_description"]
+        for key, ft in features.items():  # the pixels are in the mp4: a blank frame stands in for the check
+            if ft["dtype"] == "video":
+                first[key] = np.zeros(ft["shape"], dtype=np.uint8)
+        validate_frame(first, features)
+        buffer: dict = {"size": n, "task": [description] * n}
+        for key in features:
+            if key == "episode_index":
+                buffer[key] = ds.meta.total_episodes
+            elif key == "frame_index":
+                buffer[key] = np.arange(n)
+            elif key == "timestamp":
+                buffer[key] = np.arange(n) / ds.meta.fps
+            elif features[key]["dtype"] == "video":
+                buffer[key] = [None] * n
+            else:
+                buffer[key] = cols.get(key, [])
+        # LeRobot moves (or appends) the mp4 into the dataset and deletes its folder: give it a hard link in a
+        # folder of its own, so the staged file stays until the commit is recorded (resume)
+        folder = Path(tempfile.mkdtemp(dir=self.session.root))
+        link = folder / video.name
+        try:
+            os.link(video, link)
+        except OSError:
+            shutil.copyfile(video, link)
+        with prebuilt_episode_videos(ds) as videos:  # this episode only: others may come frame by frame
+            videos.put({S.OBS_IMAGE: (link, video_stats)})
+            ds.save_episode(episode_data=buffer)
 
     def close(self, next_seed: int | None = None) -> int:
         """Finalize, check the videos, record the episodes (the commit point), delete their staged files.
@@ -142,6 +215,7 @@ class WriterSession:
             next_seed = int(self.kept[-1]["seed"]) + 1 if self.kept else record.next_seed
         try:
             self.ds.finalize()
+            self._stats_write.flush()
             self._patches.close()
             # LeRobot's concatenated mp4s are 0600
             restore_default_mode(session.root.glob("videos/*/*/*.mp4"))

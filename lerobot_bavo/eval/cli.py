@@ -12,8 +12,9 @@ with `bavo-view --rrd FILE`; `--rerun <output-dir>/videos` puts them next to the
 camera, RGB, occluder, visibility, progress, milestones and the policy's predicted action chunks, all
 from the rollout's own observations and info.
 
-Resumable: finished episodes (and so finished cells) found in --output-dir are kept, and only
-missing ones run; the run is keyed on a digest of the checkpoint's files (not its path: a moved
+Resumable: each episode's record is appended to episodes.jsonl as soon as the episode ends (completion
+order, whichever worker ran it); finished episodes (and so finished cells) found in --output-dir are kept,
+and only missing ones run; the run is keyed on a digest of the checkpoint's files (not its path: a moved
 checkpoint resumes, one replaced at the same path is refused instead of mixed in), and every
 record carries that digest. A torn last line of episodes.jsonl (a full disk, a kill mid-write) is
 dropped with a warning; one run at a time may write an output folder (a lock on its real path).
@@ -148,10 +149,14 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--{name} must be >= {low}, got {getattr(args, name)}")
     from lerobot_bavo import register_lerobot_types
     from lerobot_bavo.checkpoints import CheckpointMismatchError, UntrustedCheckpointError
+    from lerobot_bavo.eval.rollout import EXPERT_POLICIES
 
     # After the arguments are checked (`--help` and usage errors answer at once), before any worker is forked:
-    # the workers inherit LeRobot's "bavo" / "maniflow" / "afar" types instead of each importing them.
-    register_lerobot_types()
+    # the workers inherit LeRobot's "bavo" / "maniflow" / "afar" types instead of each importing them. A
+    # scripted expert needs neither LeRobot nor PyTorch: importing them (seconds of CPU) would only delay
+    # the workers' start and make this process the run's serial part (issue 30).
+    if args.grid is not None or args.policy not in EXPERT_POLICIES:
+        register_lerobot_types()
     if args.grid is not None:
         if (problem := executor_problem(args.executor, args.ray_address, args.workers)) is not None:
             raise SystemExit(f"bavo-eval: {problem}")

@@ -357,7 +357,8 @@ def _evaluate_locked(
     with (open(log_path, "ab", buffering=0) as log,
           tqdm(total=len(jobs), desc="episodes", unit="ep") as bar,
           _make_pool(executor, workers, jobs, ray_address) as pool):
-        for record in pool.imap(run_job, jobs):
+        # completion order: each record is logged (and so kept for a resume) as soon as its episode ends
+        for record in pool.imap_unordered(run_job, jobs):
             done[(record["task"], record["condition"], record["seed"])] = record
             append_record(log, record)
             bar.update(1)

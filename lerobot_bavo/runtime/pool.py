@@ -7,7 +7,9 @@ its GL contexts, an expert recorder, a policy). Both need the same things: `init
 to keep the set-up between jobs without rebuilding it per episode.
 
 - `WorkerPool(workers)`: `workers == 0` runs every job in the calling process (`submit` runs it at
-  once; `imap` runs one job per item consumed, so results can be written as they come); `workers >= 1`
+  once; `imap` / `imap_unordered` run one job per item consumed, so results can be written as they come);
+  with workers, `imap` gives results in job order and `imap_unordered` as jobs finish (`bavo-eval`: no
+  record waits for a slower episode submitted before it); `workers >= 1`
   uses a `ProcessPoolExecutor` of that many processes, started with `start_method` ("spawn" by
   default: a fresh interpreter, no GL context or torch thread pool inherited from the parent; `None`
   is the platform's default, "fork" on Linux, which `bavo-eval` keeps so that a job function replaced
@@ -66,6 +68,22 @@ class WorkerPool:
         if self._executor is not None:
             return self._executor.map(fn, jobs)
         return (fn(job) for job in jobs)
+
+    def imap_unordered(self, fn: Callable[[dict], Any], jobs: Iterable[dict]) -> Iterator[Any]:
+        """Results of `fn` over `jobs` as each finishes (any order; callers key them, e.g. by seed). Every job
+        is queued at once, so a worker never waits on this process for its next one, and a result is handed
+        over as soon as it exists, not after those queued before it; the first failed job's exception is
+        raised and the jobs not started are cancelled. In-process: one job per result asked for."""
+        if self._executor is None:
+            yield from (fn(job) for job in jobs)
+            return
+        futures = [self._executor.submit(fn, job) for job in jobs]
+        try:
+            for fut in cf.as_completed(futures):
+                yield fut.result()
+        finally:
+            for fut in futures:
+                fut.cancel()
 
     def shutdown(self, cancel: bool = False, wait: bool = True) -> None:
         """Stop the workers; `cancel` drops queued jobs (after an error: don't run them first)."""

@@ -154,6 +154,8 @@ class RayPool:
         finally:
             self.cancel()
 
+    imap_unordered = imap  # Ray's results always come in completion order (`WorkerPool`'s name for that)
+
     def cancel(self) -> None:
         for ref in self._pending:
             self._ray.cancel(ref, force=True)
