@@ -213,8 +213,12 @@ def cvg_table(methods: dict) -> list[str]:
     return lines
 
 
-def report(methods: dict) -> str:
-    out = ["## Macro over tasks (the paper's Table 1)", "",
+def report(methods: dict, sources: list[str]) -> str:
+    out = ["# BAVO-Bench results table (the paper's format)", "",
+           "Written by `python scripts/results_table.py " + " ".join(sources) + "`; what it means, the "
+           "recipe and the state of each method: [README.md](README.md#where-the-learned-policies-stand).",
+           "",
+           "## Macro over tasks (the paper's Table 1)", "",
            "SR and TPS in %, mean over the tasks a method has (`tasks`), mean ± std over training seeds (one "
            "value where there is one seed). A method with fewer than five tasks is not comparable to the "
            "paper's five-task macro.", "", *macro_table(methods), "",
@@ -254,7 +258,8 @@ def main(argv: list[str] | None = None) -> None:
             p.error(f"no results file at {path}")
         runs.setdefault(label, []).append(Path(path))
     methods.update(methods_of_runs(runs))
-    text = report(methods)
+    sources = ([f"--grid {args.grid}"] if args.grid is not None else []) + [f'--run "{r}"' for r in args.run]
+    text = report(methods, sources)
     if args.output:
         args.output.write_text(text)
     print(text)
