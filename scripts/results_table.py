@@ -19,7 +19,7 @@ import argparse
 import json
 from pathlib import Path
 
-from lerobot_bavo.eval.grid import fmt_mean_std, mean_std
+from lerobot_bavo.eval.grid import fmt_mean_std, mean_over_tasks, mean_std
 from lerobot_bavo.metrics import wilson_interval
 
 CONDITIONS = ("clean", "stage", "random")
@@ -113,9 +113,10 @@ def pooled_sr_interval(per_seed: dict[str, dict]) -> tuple[int, int, float, floa
 
 
 def macro(cells: dict[str, dict[str, dict]], tasks: list[str], condition: str, metric: str):
-    """Mean over `tasks` per training seed, then (mean, std) over the seeds every one of those tasks has."""
+    """Mean over `tasks` per training seed (the grid's own `mean_over_tasks`), then (mean, std) over the seeds
+    every one of those tasks has."""
     labels = set.intersection(*(set(cells[f"{t}/{condition}"]) for t in tasks))
-    per_seed = [sum(cells[f"{t}/{condition}"][label][metric] for t in tasks) / len(tasks)
+    per_seed = [mean_over_tasks([cells[f"{t}/{condition}"][label] for t in tasks])[metric]
                 for label in sorted(labels)]
     return mean_std(per_seed)
 
