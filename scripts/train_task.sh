@@ -76,6 +76,13 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
         ${WARMUP:+--policy.scheduler_warmup_steps="$WARMUP"} "$@" 2>&1 | tee "outputs/train/$name.log"
 }
 
+test_eval() {  # test_eval POLICY OUTPUT_DIR [bavo-eval args...]: the 40 test seeds 2000-2039, all conditions
+    local policy=$1 out=$2
+    shift 2
+    .venv/bin/bavo-eval --policy "$policy" --tasks "$TASK" --conditions clean,stage,random --episodes 40 \
+        --seed 2000 --workers "$WORKERS" --output-dir "$out" "$@"
+}
+
 case "${1:-}" in
     collect)
         .venv/bin/bavo-collect --task "$TASK" --condition stage --episodes 100 --repo-id "$REPO" \
@@ -96,9 +103,7 @@ case "${1:-}" in
     test)
         run=${2:?usage: test RUN STEP}
         step=$(printf %06d "${3:?usage: test RUN STEP}")
-        .venv/bin/bavo-eval --policy "outputs/train/$run/checkpoints/$step/pretrained_model" \
-            --tasks "$TASK" --conditions clean,stage,random --episodes 40 --seed 2000 \
-            --workers "$WORKERS" --output-dir "outputs/eval/${run}_${step}_test" ;;
+        test_eval "outputs/train/$run/checkpoints/$step/pretrained_model" "outputs/eval/${run}_${step}_test" ;;
     recipe)
         method=${2:?usage: recipe afar|maniflow}
         case "$method" in afar|maniflow) ;; *) echo "recipe: afar or maniflow, not '$method'" >&2; exit 2 ;; esac
@@ -129,8 +134,7 @@ case "${1:-}" in
         [ "$SEED" = 1000 ] || ship="${ship}_s$SEED"
         evaldir="outputs/eval/grid_table/runs/$method/s$SEED/$TASK"
         .venv/bin/python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
-        .venv/bin/bavo-eval --policy "$ship" --tasks "$TASK" --conditions clean,stage,random --episodes 40 \
-            --seed 2000 --workers "$WORKERS" --videos 0 --output-dir "$evaldir"
+        test_eval "$ship" "$evaldir" --videos 0
         .venv/bin/python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
             --output "$ship" ;;
     *)
