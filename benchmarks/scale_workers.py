@@ -101,7 +101,9 @@ def run_once(job: str, args, workers: int, tmp: Path) -> dict:
     """One measured run: wall, the coordinator's CPU, all processes' CPU (seconds)."""
     out = tmp / f"{job}_{workers}"
     stats = tmp / f"{job}_{workers}.json"
-    env = dict(os.environ, PYTHONPATH=str(args.tree), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
+    # the tree first, then whatever PYTHONPATH already held (the GPU machine installs its wheels there)
+    pythonpath = os.pathsep.join(filter(None, [str(args.tree), os.environ.get("PYTHONPATH")]))
+    env = dict(os.environ, PYTHONPATH=pythonpath, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
                HF_HUB_OFFLINE="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     before = children_cpu()
     t0 = time.perf_counter()

@@ -207,7 +207,9 @@ def serve_steps(args) -> None:
     accelerator = Accelerator(cpu=args.device == "cpu", mixed_precision=mixed)
     tracker = MetricsTracker(args.batch, ds.num_frames, ds.num_episodes,
                              {"loss": AverageMeter("loss"), "grad_norm": AverageMeter("grdn"),
-                              "lr": AverageMeter("lr"), "update_s": AverageMeter("updt_s")})
+                              "lr": AverageMeter("lr"), "update_s": AverageMeter("updt_s"),
+                              # update_policy records the peak GPU memory on CUDA (as lerobot-train's tracker)
+                              **({"gpu_mem_gb": AverageMeter("mem_gb")} if args.device == "cuda" else {})})
     gen = torch.Generator().manual_seed(0)
 
     def batches():
@@ -260,7 +262,9 @@ def serve_steps(args) -> None:
                 wall_us = (time.perf_counter() - t0) * 1e6
             kernels = [(e.time_range.start, e.time_range.end) for e in prof.events()
                        if e.device_type == DeviceType.CUDA]
-            print(json.dumps({"busy": busy_fraction(kernels, wall_us) if kernels else None}), flush=True)
+            mem = torch.cuda.max_memory_allocated() / 2**30 if args.device == "cuda" else None
+            print(json.dumps({"busy": busy_fraction(kernels, wall_us) if kernels else None, "mem_gib": mem}),
+                  flush=True)
         elif cmd[0] == "quit":
             return
 
@@ -365,9 +369,11 @@ def compare_steps(args) -> None:
                 if i >= args.warmup:
                     times[name].append(answer["s"])
                     cpu_times[name].append(answer["cpu_s"])
-        busy = {}
+        busy, peak = {}, {}
         if args.device == "cuda" and args.profile_steps > 0:
-            busy = {name: ask(name, f"profile {args.profile_steps}")["busy"] for name in workers}
+            profiled = {name: ask(name, f"profile {args.profile_steps}") for name in workers}
+            busy = {name: p["busy"] for name, p in profiled.items()}
+            peak = {name: p.get("mem_gib") for name, p in profiled.items()}
         for worker in workers.values():
             worker.stdin.write("quit\n")
             worker.stdin.flush()
@@ -384,6 +390,7 @@ def compare_steps(args) -> None:
         q1, q3 = statistics.quantiles(ts, n=4)[0], statistics.quantiles(ts, n=4)[2]
         rate[name] = args.batch / med
         extra = f", GPU busy {busy[name]:.0%}" if busy.get(name) is not None else ""
+        extra += f", peak GPU memory {peak[name]:.1f} GiB" if peak.get(name) is not None else ""
         print(
             f"  {name}: {med * 1e3:8.1f} ms per step of {args.batch} (quartiles "
             f"{q1 * 1e3:.1f}-{q3 * 1e3:.1f}), "

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# The device checks of one lent-GPU session, as one prepared script (docs/gpu.md, "On the project's lent GPU
+# machine"). Run there from the project root, carrying .device/{whl-av,whl-train,fpsample,gl,on-device.sh,
+# baseline}: `bash benchmarks/gpu_session.sh`. Each part has its own time limit and writes its log under
+# $OUT (or outputs/gpu_session), so whatever finishes comes back even when a later part runs out of time.
+# PARTS="collect tp_paper_b512_amp ..." runs only the parts named (collect is needed by every tp_* part).
+#   1. a small Cube Handoff points view collected there (2 Stage episodes);
+#   2. issue 28: training step throughput, old (.device/baseline) vs new code, side by side, with GPU busy;
+#   3. issue 30: `bavo-collect` / `bavo-eval` scaling from 2 to 16 workers on the 16-core machine;
+#   4. issue 28: the paper preset's step with --policy.compile=true (new code only), then `lerobot-train` on
+#      CUDA with LeRobot's default loader workers, a few steps.
+set -uo pipefail
+OUT=${OUT:-outputs/gpu_session}
+mkdir -p "$OUT"
+source .device/on-device.sh
+export OMP_NUM_THREADS=1
+log() { echo "[gpu_session $(date +%T)] $*" | tee -a "$OUT/session.log"; }
+part() {  # part NAME SECONDS CMD...: run CMD with a time limit, output to $OUT/NAME.log
+    local name=$1 limit=$2; shift 2
+    if [ -n "${PARTS:-}" ] && [[ " $PARTS " != *" $name "* ]]; then log "skip $name"; return; fi
+    log "start $name (limit ${limit}s)"
+    local t0=$SECONDS
+    timeout "$limit" "$@" > "$OUT/$name.log" 2>&1
+    log "end $name: exit $? after $((SECONDS - t0))s"
+    tail -25 "$OUT/$name.log"
+}
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
+python -c 'import torch; print("torch", torch.__version__, "cuda", torch.version.cuda)' | tee -a "$OUT/gpu.txt"
+nproc | tee -a "$OUT/gpu.txt"
+
+DATA=$(mktemp -d /tmp/gpu_bench.XXXXXX)/gpu_bench  # fresh each run (a machine may be reused)
+part collect 90 bash -c "bavo-collect --task cube_handoff --condition stage --episodes 2 --repo-id local/gpu_bench \
+    --root $DATA --workers 2 --no-progress && python -m lerobot_bavo.datasets.views --root $DATA --view points"
+TP=(python benchmarks/train_throughput.py --device cuda --threads 8 --root ${DATA}_points
+    --repo-id local/gpu_bench_points --baseline-dir .device/baseline --steps 15 --warmup 5)
+part tp_paper_b512_amp 100 "${TP[@]}" --preset paper --batch 512 --use-amp
+part tp_paper_b256_amp 80 "${TP[@]}" --preset paper --batch 256 --use-amp
+part tp_cpu_fast_b512 60 "${TP[@]}" --preset cpu_fast --batch 512
+part tp_cpu_fast_b256 60 "${TP[@]}" --preset cpu_fast --batch 256
+part scale_workers 170 python benchmarks/scale_workers.py --workers 2,16 --episodes ${SCALE_EPISODES:-40} --job both \
+    --json "$OUT/scale_workers.json"
+part tp_paper_b512_amp_compile 150 "${TP[@]}" --preset paper --batch 512 --use-amp \
+    --new-policy-arg compile=true
+part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
+    --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
+    --steps=20 --log_freq=5 --save_checkpoint=false --output_dir=/tmp/train_defaults --wandb.enable=false
+log done
