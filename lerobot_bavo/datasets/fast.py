@@ -308,7 +308,10 @@ class InMemoryReader:
         if store.device.type == "cpu":
             batch = store.gather(idx)
         else:
-            batch = DeviceBatch(store.gather(idx.to(store.device, non_blocking=True)))
+            # the B indices are all that crosses over: from pinned memory (torch's caching host allocator
+            # keeps the buffer until the copy is done), so the copy is queued without waiting for the device
+            sent = idx.pin_memory() if store.device.type == "cuda" else idx
+            batch = DeviceBatch(store.gather(sent.to(store.device, non_blocking=True)))
         names = self._task_names
         # from the CPU column: the strings need no read from the device
         batch["task"] = ([names[0]] * len(idx) if len(names) == 1
