@@ -131,16 +131,21 @@ def supports(dataset) -> str | None:
 
 class ColumnStore:
     """The tensors a batch gather reads, all on one device: the columns, the episode bounds, the absolute ->
-    relative row map and the `delta_timestamps` offsets (in frames). `gather` serves a whole batch in one
-    vectorised step, on whichever device the store lives."""
+    relative row map and the `delta_timestamps` windows. `gather` serves a whole batch in one vectorised step,
+    on whichever device the store lives."""
 
     def __init__(self, columns: dict[str, torch.Tensor], ep_from: torch.Tensor, ep_to: torch.Tensor,
-                 rel: torch.Tensor | None, first: int, delta: dict[str, torch.Tensor] | None):
+                 rel: torch.Tensor | None, first: int, delta: dict[str, tuple[int, ...]] | None):
         self.columns = columns
         self.ep_from, self.ep_to = ep_from, ep_to  # (episodes,) absolute frame bounds, end exclusive
         self.rel, self.first = rel, first  # rel None: the rows hold absolute indices first, first + 1, ...
-        self.delta = delta  # key -> (K,) frame offsets of its window
         self.absolute = columns["index"].to(torch.int64)
+        self.delta = delta  # key -> frame offsets of its window (LeRobot's `delta_indices`), or None
+        # Keys with the same offsets (ManiFlow's observation keys share theirs) share the index arithmetic.
+        self.windows = {
+            offsets: torch.tensor(offsets, dtype=torch.int64, device=self.absolute.device)
+            for offsets in dict.fromkeys((delta or {}).values())
+        }
 
     @property
     def device(self) -> torch.device:
@@ -148,23 +153,17 @@ class ColumnStore:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held: columns, index tables and offsets."""
-        tensors = [*self.columns.values(), self.absolute, self.ep_from, self.ep_to]
+        """Bytes held: columns, index tables and window offsets."""
+        tensors = [*self.columns.values(), self.absolute, self.ep_from, self.ep_to, *self.windows.values()]
         tensors += [self.rel] if self.rel is not None else []
-        tensors += list(self.delta.values()) if self.delta is not None else []
         return sum(t.nbytes for t in tensors)
 
     def to(self, device) -> ColumnStore:
         """A copy on `device` (tensors already there are shared, not copied)."""
-
-        def move(t: torch.Tensor) -> torch.Tensor:
-            return t.to(device)
-
-        return ColumnStore(
-            {k: move(c) for k, c in self.columns.items()}, move(self.ep_from), move(self.ep_to),
-            None if self.rel is None else move(self.rel), self.first,
-            None if self.delta is None else {k: move(d) for k, d in self.delta.items()},
-        )
+        columns = {k: c.to(device) for k, c in self.columns.items()}
+        rel = None if self.rel is None else self.rel.to(device)
+        ep_from, ep_to = self.ep_from.to(device), self.ep_to.to(device)
+        return ColumnStore(columns, ep_from, ep_to, rel, self.first, self.delta)
 
     def relative(self, absolute: torch.Tensor) -> torch.Tensor:
         """Absolute frame indices -> rows of the columns."""
@@ -173,19 +172,27 @@ class ColumnStore:
     def gather(self, idx: torch.Tensor) -> dict[str, torch.Tensor]:
         """Rows `idx` (B,), on this store's device -> each column (B, ...); with `delta_timestamps`, each
         windowed key (B, K, ...) with its window clamped to the episode and `<key>_is_pad` (B, K): LeRobot's
-        items for these rows, collated (without `task`). Index arithmetic only, with no per-sample Python and
-        no host read, so on CUDA it is queued like any other kernel."""
-        cols = self.columns
-        batch = {key: col[idx] for key, col in cols.items()}
-        if self.delta is not None:
+        items for these rows, collated (without `task`), keys in the items' order. Index arithmetic only, with
+        no per-sample Python and no host read, so on CUDA it is queued like any other kernel."""
+        cols, delta = self.columns, self.delta or {}
+        # windowed columns are filled below, in their place
+        batch = {key: None if key in delta else col[idx] for key, col in cols.items()}
+        if delta:
+            abs_idx = self.absolute[idx][:, None]
             ep = cols["episode_index"][idx].to(torch.int64)
-            abs_idx = self.absolute[idx]
             start, end = self.ep_from[ep][:, None], self.ep_to[ep][:, None]
-            for key, delta in self.delta.items():
-                target = abs_idx[:, None] + delta[None]
-                batch[f"{key}_is_pad"] = (target < start) | (target >= end)
+            windows = {}  # offsets -> (rows (B, K), is_pad (B, K))
+            for offsets, steps in self.windows.items():
+                target = abs_idx + steps[None]
+                is_pad = (target < start) | (target >= end)
+                windows[offsets] = self.relative(torch.minimum(torch.maximum(target, start), end - 1)), is_pad
+            shared = set()
+            for key, offsets in delta.items():
+                rows, is_pad = windows[offsets]
+                # each key its own flags, as collating LeRobot's items gives
+                batch[f"{key}_is_pad"] = is_pad.clone() if offsets in shared else is_pad
+                shared.add(offsets)
                 if key in cols:
-                    rows = self.relative(torch.minimum(torch.maximum(target, start), end - 1))
                     batch[key] = cols[key][rows]
         return batch
 
@@ -236,7 +243,7 @@ class InMemoryReader:
             rel = torch.full((int(abs_idx.max()) - first + 1,), -1, dtype=torch.int64)
             rel[abs_idx - first] = torch.arange(len(abs_idx))
         delta = (
-            {k: torch.as_tensor(np.asarray(v, dtype=np.int64)) for k, v in reader.delta_indices.items()}
+            {k: tuple(int(d) for d in v) for k, v in reader.delta_indices.items()}
             if reader.delta_indices is not None else None
         )
         self.store = ColumnStore(self.columns, ep_from, ep_to, rel, first, delta)
