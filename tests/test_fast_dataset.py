@@ -242,11 +242,19 @@ def test_device_batches_share_reads_the_environment(monkeypatch):
             fast.device_batches_share()
 
 
-def test_a_device_batch_passes_the_pin_memory_step_unchanged():
+def test_a_device_batch_passes_the_pin_memory_step_and_accelerate_unchanged():
+    """What lerobot-train's DataLoader (pin_memory=True on CUDA) and accelerate's prepared loader (moving each
+    batch to the accelerator's device) do to a batch already on the device: nothing."""
+    from accelerate.utils import send_to_device
+    from torch.utils.data._utils.pin_memory import pin_memory  # what torch's single-process iterator calls
+
     from lerobot_bavo.datasets.fast import DeviceBatch
 
-    batch = DeviceBatch(x=torch.zeros(2), task=["a", "b"])
-    assert batch.pin_memory() is batch
+    x = torch.zeros(2)
+    batch = DeviceBatch(x=x, task=["a", "b"])
+    assert batch.pin_memory() is batch and pin_memory(batch) is batch
+    moved = send_to_device(batch, x.device)
+    assert isinstance(moved, DeviceBatch) and moved["x"] is x and moved["task"] == ["a", "b"]
 
 
 def test_the_device_gather_runs_off_the_cpu(views):
