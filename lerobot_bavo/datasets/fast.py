@@ -25,16 +25,18 @@ vectorised gather per column (`ColumnStore.gather`: the window offsets of `delta
 the episode and `*_is_pad` as index arithmetic), already collated (`GatheredItems`, which torch's
 `default_collate` hands through unchanged), so no per-sample Python runs, with any `--num_workers`.
 
-Device-resident batches: on a GPU the training step waits for the CPU, and gathering, collating, pinning and
-copying a batch of 512 samples is a large part of that CPU work. So when
+Device-resident batches: on a GPU the training step waits for the host, and gathering, collating, pinning and
+copying a batch is part of the host's work (gather and collate alone took 22.7 ms of one core at batch 512
+item by item, 6.9 ms in one step; docs/gpu.md). So when
 - the batch is fetched in lerobot-train's own process (`--num_workers=0`; CUDA tensors cannot come out of
   DataLoader worker processes, and those keep gathering on the CPU), and
 - lerobot-train trains on CUDA (the device of the `accelerate.Accelerator` it built, `--policy.device`), and
 - the view's columns take at most `BAVO_DEVICE_BATCHES` (default 0.25) of that device's free memory,
 the columns are copied to the device once, at the first batch, and every batch is gathered there: a
 `DeviceBatch` comes out of the DataLoader with no host-to-device copy of the data (only the B indices go
-over). One log line says which was chosen and the memory it takes. `BAVO_DEVICE_BATCHES=0` keeps batches on
-the CPU. Everywhere else (CPU training, workers, no `Accelerator`) batches are gathered on the CPU as before.
+over). On a CUDA accelerator one log line says which was chosen and the memory it takes.
+`BAVO_DEVICE_BATCHES=0` keeps batches on the CPU. Everywhere else (CPU training, workers, no `Accelerator`)
+batches are gathered on the CPU as before.
 """
 
 from __future__ import annotations
@@ -268,6 +270,8 @@ class InMemoryReader:
         device = torch.device(device)
         if device.type == "cpu":
             return self.store
+        if device.type == "cuda" and device.index is None:  # "cuda" and "cuda:0" are one copy
+            device = torch.device("cuda", torch.cuda.current_device())
         if self._device_store is None or self._device_store.device != device:
             self._device_store = self.store.to(device)
         return self._device_store
