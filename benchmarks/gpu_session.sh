@@ -5,10 +5,12 @@
 # $OUT (or outputs/gpu_session), so whatever finishes comes back even when a later part runs out of time.
 # PARTS="collect tp_paper_b512_amp ..." runs only the parts named (collect is needed by every tp_* part).
 #   1. a small Cube Handoff points view collected there (2 Stage episodes);
-#   2. issue 28: training step throughput, old (.device/baseline) vs new code, side by side, with GPU busy;
+#   2. issue 28: training step throughput, old (.device/baseline) vs new code, side by side, with GPU busy and
+#      the batch fetch alone; the new code gathers its batches on the GPU (num_workers=0), and the *_host_gather
+#      parts time it with BAVO_DEVICE_BATCHES=0 (gathered on the host, as before device-resident batches);
 #   3. issue 30: `bavo-collect` / `bavo-eval` scaling from 2 to 16 workers on the 16-core machine;
 #   4. issue 28: the paper preset's step with --policy.compile=true (new code only), then `lerobot-train` on
-#      CUDA with LeRobot's default loader workers, a few steps.
+#      CUDA with LeRobot's default loader workers, a few steps, and with --num_workers=0 (device batches).
 set -uo pipefail
 OUT=${OUT:-outputs/gpu_session}
 mkdir -p "$OUT"
@@ -32,11 +34,13 @@ DATA=$(mktemp -d /tmp/gpu_bench.XXXXXX)/gpu_bench  # fresh each run (a machine m
 part collect 90 bash -c "bavo-collect --task cube_handoff --condition stage --episodes 2 --repo-id local/gpu_bench \
     --root $DATA --workers 2 --no-progress && python -m lerobot_bavo.datasets.views --root $DATA --view points"
 TP=(python benchmarks/train_throughput.py --device cuda --threads 8 --root ${DATA}_points
-    --repo-id local/gpu_bench_points --baseline-dir .device/baseline --steps 15 --warmup 5)
+    --repo-id local/gpu_bench_points --baseline-dir .device/baseline --steps 15 --warmup 5 --load-batches 20)
 part tp_paper_b512_amp 100 "${TP[@]}" --preset paper --batch 512 --use-amp
 part tp_paper_b256_amp 80 "${TP[@]}" --preset paper --batch 256 --use-amp
 part tp_cpu_fast_b512 60 "${TP[@]}" --preset cpu_fast --batch 512
 part tp_cpu_fast_b256 60 "${TP[@]}" --preset cpu_fast --batch 256
+part tp_paper_b512_amp_host_gather 100 env BAVO_DEVICE_BATCHES=0 "${TP[@]}" --preset paper --batch 512 --use-amp
+part tp_cpu_fast_b512_host_gather 60 env BAVO_DEVICE_BATCHES=0 "${TP[@]}" --preset cpu_fast --batch 512
 part scale_workers 170 python benchmarks/scale_workers.py --workers 2,16 --episodes ${SCALE_EPISODES:-40} --job both \
     --json "$OUT/scale_workers.json"
 part tp_paper_b512_amp_compile 150 "${TP[@]}" --preset paper --batch 512 --use-amp \
@@ -44,4 +48,8 @@ part tp_paper_b512_amp_compile 150 "${TP[@]}" --preset paper --batch 512 --use-a
 part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
     --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
     --steps=20 --log_freq=5 --save_checkpoint=false --output_dir=/tmp/train_defaults --wandb.enable=false
+part train_device_batches 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
+    --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
+    --num_workers=0 --steps=20 --log_freq=5 --save_checkpoint=false --output_dir=/tmp/train_device_batches \
+    --wandb.enable=false
 log done

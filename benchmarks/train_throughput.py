@@ -23,7 +23,10 @@ num_workers=0). Each runs in its own subprocess (a package cannot be imported tw
 one process); the parent alternates them step by step, so machine load affects both alike. A step is
 LeRobot's own `update_policy` (autocast when `--use-amp`, forward, backward, gradient norm, optimiser, EMA
 `update()`, metrics) after fetching and normalising the batch, as `lerobot-train` does it. On CUDA it also
-prints the GPU busy fraction of each (kernel time / wall time, torch.profiler, a few extra steps).
+prints the GPU busy fraction of each (kernel time / wall time, torch.profiler, a few extra steps). Each path
+says where it gathered its batches: with `--device cuda` the working tree's data path holds the view on the
+GPU and gathers there (`lerobot_bavo.datasets.fast`, "Device-resident batches": num_workers=0 and a CUDA
+accelerator, as here); set `BAVO_DEVICE_BATCHES=0` to time its CPU gather instead.
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py --root <points view> --repo-id <id> \\
         --baseline-commit 729528a --device cpu --preset cpu_fast --batch 64 --threads 2
 Where there is no git history (the GPU machine gets a copy of the working tree), extract the old code here and
@@ -72,6 +75,8 @@ def parse_args() -> argparse.Namespace:
     step.add_argument(
         "--profile-steps", type=int, default=5, help="CUDA: steps profiled for the busy fraction"
     )
+    step.add_argument("--load-batches", type=int, default=0,
+                      help="also time this many batch fetches alone (DataLoader + normalisation) per path")
     step.add_argument("--worker", default=None, help=argparse.SUPPRESS)  # internal: serve steps of one path
     return p.parse_args()
 
@@ -160,8 +165,9 @@ def busy_fraction(intervals: list[tuple[float, float]], wall: float) -> float:
 
 
 def serve_steps(args) -> None:
-    """Worker: build one path, then answer "step" with the seconds one training step took, "profile K" with
-    the GPU busy fraction over K steps, and "quit"."""
+    """Worker: build one path, then answer "step" with the seconds one training step took, "load" with those
+    of one batch fetch alone, "loader" with where batches are gathered, "profile K" with the GPU busy fraction
+    over K steps, and "quit"."""
     import json
     import sys
 
@@ -245,7 +251,19 @@ def serve_steps(args) -> None:
     )
     for line in sys.stdin:
         cmd = line.split()
-        if cmd[0] == "step":
+        if cmd[0] == "loader":
+            # where this code gathers a batch: the training device with the device-resident path (the working
+            # tree's `InMemoryReader.batch_device`), else the CPU (older code: no such method)
+            where = getattr(ds.reader, "batch_device", None)
+            print(json.dumps({"gather": str(where()) if where else "cpu"}), flush=True)
+        elif cmd[0] == "load":
+            # one batch fetched and normalised (on the device where the path gathers there), no training step
+            sync()
+            t0, c0 = time.perf_counter(), time.process_time()
+            pre(next(it))
+            sync()
+            print(json.dumps({"s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}), flush=True)
+        elif cmd[0] == "step":
             wall, cpu = step()
             print(json.dumps({"s": wall, "cpu_s": cpu}), flush=True)
         elif cmd[0] == "profile":
@@ -369,6 +387,11 @@ def compare_steps(args) -> None:
                 if i >= args.warmup:
                     times[name].append(answer["s"])
                     cpu_times[name].append(answer["cpu_s"])
+        gather = {name: ask(name, "loader")["gather"] for name in workers}
+        loads = {name: [] for name in workers}
+        for i in range(args.load_batches):
+            for name in (("old", "new") if i % 2 == 0 else ("new", "old")):
+                loads[name].append(ask(name, "load"))
         busy, peak = {}, {}
         if args.device == "cuda" and args.profile_steps > 0:
             profiled = {name: ask(name, f"profile {args.profile_steps}") for name in workers}
@@ -389,13 +412,20 @@ def compare_steps(args) -> None:
         med = statistics.median(ts)
         q1, q3 = statistics.quantiles(ts, n=4)[0], statistics.quantiles(ts, n=4)[2]
         rate[name] = args.batch / med
-        extra = f", GPU busy {busy[name]:.0%}" if busy.get(name) is not None else ""
+        extra = f", batches gathered on {gather[name]}"
+        extra += f", GPU busy {busy[name]:.0%}" if busy.get(name) is not None else ""
         extra += f", peak GPU memory {peak[name]:.1f} GiB" if peak.get(name) is not None else ""
         print(
             f"  {name}: {med * 1e3:8.1f} ms per step of {args.batch} (quartiles "
             f"{q1 * 1e3:.1f}-{q3 * 1e3:.1f}), "
             f"{rate[name]:7.1f} samples/s, CPU time {statistics.median(cpu_times[name]) * 1e3:.1f} ms{extra}"
         )
+    if args.load_batches:
+        print(f"\nBatch fetch alone (DataLoader + normalisation, batch {args.batch}), median of "
+              f"{args.load_batches} alternated fetches:")
+        for name, answers in loads.items():
+            print(f"  {name}: {statistics.median(a['s'] for a in answers) * 1e3:7.2f} ms wall, "
+                  f"{statistics.median(a['cpu_s'] for a in answers) * 1e3:7.2f} ms CPU time")
     pairs = [o / n for o, n in zip(times["old"], times["new"], strict=True)]
     cpu_ratio = statistics.median(cpu_times["old"]) / statistics.median(cpu_times["new"])
     print(f"  ratio new / old: {rate['new'] / rate['old']:.2f}x samples/s (median of the per-round ratios "

@@ -85,6 +85,34 @@ def test_lerobot_defaults_train_afar_on_a_bavo_view(points_view, tmp_path):
     assert train_cfg["num_workers"] == 4
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_lerobot_train_on_cuda_without_workers_gathers_batches_on_the_device(points_view, tmp_path):
+    """--num_workers=0 on CUDA: the view is held on the GPU and batches are gathered there (one log line says
+    so, with the memory it takes); the batch goes through LeRobot's pinning, accelerate and preprocessor."""
+    proc = _train(
+        [
+            "--policy.type=afar",
+            "--policy.preset=cpu_fast",
+            "--policy.points_per_step=16",
+            "--policy.device=cuda",
+            "--policy.push_to_hub=false",
+            "--dataset.repo_id=tester/bavo_defaults_points",
+            f"--dataset.root={points_view}",
+            "--num_workers=0",
+            "--batch_size=8",
+            "--steps=3",
+            "--log_freq=1",
+            "--save_checkpoint=false",
+            f"--output_dir={tmp_path / 'run'}",
+            "--wandb.enable=false",
+        ],
+        tmp_path,
+    )
+    log = proc.stdout + proc.stderr
+    assert "BAVO device batches: tester/bavo_defaults_points held on cuda" in log, log[-3000:]
+    assert "step:3" in log
+
+
 def test_lerobot_defaults_train_maniflow_on_another_robots_dataset(other_robot_dataset, tmp_path):
     """A 6-dim action with other names: nothing is snapped, and the policy trains, saves and loads."""
     out = tmp_path / "run"
