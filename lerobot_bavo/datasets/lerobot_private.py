@@ -19,9 +19,9 @@ offer:
    gives the same statistics bit for bit (tested against LeRobot's function) without the histograms.
 4. Cheaper streaming image statistics. LeRobot's video encoder thread updates a
    `compute_stats.RunningQuantileStats` with every frame (a float32 reduction and histograms per
-   frame). `deferred_video_frame_stats` swaps in `datasets.video_stats.DeferredFrameStats`,
-   a subclass that replays the same updates once per episode, bit for bit; it relies on the parent's
-   private fields (`STATS_FIELDS`).
+   frame). `deferred_video_frame_stats` swaps in `datasets.video_stats.DeferredFrameStats`, which
+   replays the same updates once per episode, bit for bit (a subclass of `datasets.quantile_stats`'
+   copy of LeRobot's class, tested against LeRobot's).
 5. A cheaper episode table. `DatasetWriter._save_episode_data` builds each episode's table with
    `datasets.Dataset.from_dict` (mostly Python work per column and feature bookkeeping) and writes
    `with_format("arrow")[:]` of it. `arrow_episode_tables` gives LeRobot's writer module a `datasets` whose
@@ -74,9 +74,6 @@ WRITER_MODULE_ATTRIBUTES = ("embed_images", "compute_episode_stats", "datasets")
 METADATA_MODULE_ATTRIBUTES = ("write_stats",)  # lerobot.datasets.dataset_metadata
 # lerobot.datasets.compute_stats, read by the encoder thread
 STATS_MODULE_ATTRIBUTES = ("RunningQuantileStats",)
-STATS_FIELDS = ("_count", "_mean", "_mean_of_squares", "_min", "_max", "_histograms", "_bin_edges",
-                # RunningQuantileStats internals DeferredFrameStats uses
-                "_num_quantile_bins", "_adjust_histograms")
 
 
 class LeRobotInternalsChanged(RuntimeError):
@@ -110,10 +107,6 @@ def check_private_api(dataset=None) -> None:
     missing += [
         f"lerobot.datasets.compute_stats.{a}" for a in STATS_MODULE_ATTRIBUTES if not hasattr(stats_mod, a)
     ]
-    if hasattr(stats_mod, "RunningQuantileStats"):
-        probe = stats_mod.RunningQuantileStats()
-        probe.update(np.zeros((2, 3), dtype=np.float32))
-        missing += [f"RunningQuantileStats.{f}" for f in STATS_FIELDS if not hasattr(probe, f)]
     if dataset is not None:
         writer, meta = getattr(dataset, "writer", None), getattr(dataset, "meta", None)
         if writer is None:
