@@ -9,7 +9,7 @@ episode, so the worker that recorded it builds them (`build_payload`) and stages
 - the active camera's video: an mp4 encoded frame by frame with PyAV exactly as LeRobot's streaming encoder
   thread encodes it (`video_utils.StreamingVideoEncoder`: the same codec options, pixel format, frame rate,
   frame timestamps), so the bytes are the same; the options come from the writer's `RGBEncoderConfig`
-  (`video_settings`, computed where LeRobot is loaded) and travel in the job;
+  (`video_settings`, or `codec_video_settings` where LeRobot is not loaded) and travel in the job;
 - nearly all of the image statistics LeRobot's encoder thread would compute while encoding: the per-frame
   reductions of every frame down-sampled as LeRobot does (`frame_reductions.py`, numpy only); the writer
   finishes them in LeRobot's class (`video_stats.stats_from_reductions`, a few ms), bit for bit;
@@ -45,6 +45,17 @@ def video_settings(rgb_encoder, encoder_threads: int | None, fps: int) -> dict:
     options as strings (LeRobot's own translation, `get_codec_options`). Plain data: it travels in a job."""
     return {"vcodec": rgb_encoder.vcodec, "pix_fmt": rgb_encoder.pix_fmt, "fps": int(fps),
             "options": dict(rgb_encoder.get_codec_options(encoder_threads, as_strings=True))}
+
+
+def codec_video_settings(codec: str, fps: int) -> dict:
+    """`video_settings(rgb_encoder(codec), encoder_threads(codec), fps)` for a codec of
+    `video_codec.VIDEO_CODECS`, without importing LeRobot (`video_codec.encoder_record` / `codec_options`: the
+    same values, tested)."""
+    from lerobot_bavo.datasets.video_codec import codec_options, encoder_record
+
+    record = encoder_record(codec)
+    return {"vcodec": record["vcodec"], "pix_fmt": record["pix_fmt"], "fps": int(fps),
+            "options": codec_options(codec)}
 
 
 def encoder_options(settings: dict) -> dict[str, str]:
