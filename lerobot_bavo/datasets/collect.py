@@ -66,11 +66,11 @@ from lerobot_bavo.datasets.collect_config import (  # noqa: F401  (offered here 
     CollectConfig,
     CollectionError,
 )
-from lerobot_bavo.datasets.episode_payload import video_settings
+from lerobot_bavo.datasets.episode_payload import codec_video_settings
 from lerobot_bavo.datasets.session import DatasetSession
 from lerobot_bavo.datasets.staging import receive_shipped, run_job, ship_job, warm_job
-from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, encoder_threads, quiet_libav, rgb_encoder
-from lerobot_bavo.datasets.writer import StreamingWriter
+from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, quiet_libav
+from lerobot_bavo.datasets.writer import StreamingWriter, WriterSession
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
 from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments
@@ -188,12 +188,8 @@ class Collector(DatasetSession):
         bar.set_postfix(discarded=discarded)
         pool = (early_pool or self._pool()) if needed > 0 else None
         window = pool.max_in_flight if on_ray and pool is not None else max(1, 2 * cfg.workers)
-        writer = None
-        if needed > 0:
-            from lerobot_bavo.envs.tasks import TASKS
-
-            max_frames = cfg.episode_length or TASKS.lookup(cfg.task).max_episode_steps
-            writer = StreamingWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start)
+        writer = StreamingWriter(self._session_opener(timings, t_start), needed, cfg.commit_every) \
+            if needed > 0 else None
         try:
             while writer is not None and writer.written < needed:
                 for summary in sched.resolved():  # finished attempts, in seed order
@@ -234,6 +230,19 @@ class Collector(DatasetSession):
         # expert episodes: no LeRobot / PyTorch in workers
         return WorkerPool(self.cfg.workers, light_import=True)
 
+    def _session_opener(self, timings: dict, t_start: float):
+        """What opens each writer session: `DirectWriterSession` (the files LeRobot's writer makes, written
+        without importing LeRobot) when the dataset stores video, every episode's mp4 encoded by its worker;
+        LeRobot's writer (`WriterSession`) for a dataset without video."""
+        if self.cfg.use_videos:
+            from lerobot_bavo.datasets.direct_writer import DirectWriterSession
+
+            return functools.partial(DirectWriterSession, self, timings, t_start)
+        from lerobot_bavo.envs.tasks import TASKS
+
+        max_frames = self.cfg.episode_length or TASKS.lookup(self.cfg.task).max_episode_steps
+        return functools.partial(WriterSession, self, max_frames, timings, t_start)
+
     def _job(self, seed: int) -> dict:
         cfg = self.cfg
         return {"task": cfg.task, "condition": cfg.condition, "settings": cfg.settings.to_dict(),
@@ -248,8 +257,7 @@ class Collector(DatasetSession):
         codec as the LeRobot writer uses it (known once the dataset is open); None without video."""
         if not self.cfg.use_videos:
             return None
-        codec = self.video_codec
-        return video_settings(rgb_encoder(codec), encoder_threads(codec), S.FPS)
+        return codec_video_settings(self.video_codec, S.FPS)
 
     def _check_discards(self, total: int, limit: int, kept: int, bar) -> None:
         bar.set_postfix(discarded=total)
@@ -385,12 +393,6 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("lerobot", "datasets", "libav", "huggingface_hub"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
-    try:
-        import datasets
-
-        datasets.disable_progress_bars()
-    except Exception:
-        pass
     try:
         summary = collect(cfg)
     except (CollectionError, ValueError) as e:
