@@ -31,9 +31,9 @@ from lerobot_bavo.datasets.writer import WriterSession
 SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
 
 
-def _config(root: Path) -> CollectConfig:
+def _config(root: Path, codec: str = "h264") -> CollectConfig:
     return CollectConfig(task="cube_handoff", condition="stage", episodes=100, repo_id="tester/direct",
-                         root=root, workers=0, settings=SETTINGS, progress=False)
+                         root=root, workers=0, settings=SETTINGS, video_codec=codec, progress=False)
 
 
 def _columns(features: dict, seed: int) -> dict[str, np.ndarray]:
@@ -73,8 +73,8 @@ def _stage(session: DatasetSession, seed: int, features: dict) -> dict:
     return summary
 
 
-def _write(root: Path, sessions: list[list[int]], direct: bool, sizes: dict | None) -> None:
-    session = DatasetSession(_config(root))
+def _write(root: Path, sessions: list[list[int]], direct: bool, sizes: dict | None, codec: str) -> None:
+    session = DatasetSession(_config(root, codec))
     lock = session.lock()
     try:
         session.open()
@@ -100,12 +100,15 @@ def _files(root: Path) -> dict[str, bytes]:
             if p.is_file() and ".bavo_staging" not in p.parts}
 
 
-@pytest.mark.parametrize("sizes", [None, {"data_files_size_in_mb": 1, "video_files_size_in_mb": 1}],
-                         ids=["default-file-sizes", "tiny-file-sizes"])
-def test_the_same_files_as_lerobots_writer(tmp_path, sizes):
+TINY = {"data_files_size_in_mb": 1, "video_files_size_in_mb": 1}
+
+
+@pytest.mark.parametrize("codec,sizes", [("h264", None), ("h264", TINY), ("libsvtav1", None)],
+                         ids=["default-file-sizes", "tiny-file-sizes", "libsvtav1"])
+def test_the_same_files_as_lerobots_writer(tmp_path, codec, sizes):
     sessions = [[0, 1, 2], [3], [4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15]]
-    _write(tmp_path / "lerobot", sessions, direct=False, sizes=sizes)
-    _write(tmp_path / "direct", sessions, direct=True, sizes=sizes)
+    _write(tmp_path / "lerobot", sessions, direct=False, sizes=sizes, codec=codec)
+    _write(tmp_path / "direct", sessions, direct=True, sizes=sizes, codec=codec)
     theirs, ours = _files(tmp_path / "lerobot"), _files(tmp_path / "direct")
     assert sorted(ours) == sorted(theirs)
     if sizes:  # the tiny limits made both writers start new files inside sessions (episode rows: at the 11th)

@@ -26,6 +26,7 @@ from lerobot_bavo.datasets.collect import CollectConfig, Collector, collect
 from lerobot_bavo.datasets.episode_payload import (
     build_payload,
     encode_video,
+    image_frame_stats,
     stats_from_arrays,
     stats_to_arrays,
     video_frame_stats,
@@ -53,9 +54,9 @@ def _frames(n: int = 12, height: int = 240, width: int = 320) -> np.ndarray:
 @pytest.mark.parametrize("codec", ["h264", "libsvtav1"])
 def test_worker_video_and_its_statistics_are_what_lerobots_streaming_encoder_writes(codec, tmp_path):
     """The same frames through LeRobot's `StreamingVideoEncoder` (its own statistics class, no
-    replacement) and through `episode_payload` (the worker's frame reductions, finished in the writer): the
-    same mp4 bytes and the same raw statistics, bit for bit (at 240 x 320, where LeRobot down-samples frames
-    for statistics), and the reductions survive staging."""
+    replacement) and through `episode_payload` (the worker's frame reductions and statistics): the same mp4
+    bytes and the same raw statistics, bit for bit (at 240 x 320, where LeRobot down-samples frames for
+    statistics), and they survive staging, as do the reductions an earlier version staged."""
     from lerobot.datasets.video_utils import StreamingVideoEncoder
 
     frames = _frames()
@@ -69,12 +70,15 @@ def test_worker_video_and_its_statistics_are_what_lerobots_streaming_encoder_wri
     encode_video(frames, ours, video_settings(rgb_encoder(codec), encoder_threads(codec), S.FPS))
     assert ours.read_bytes() == Path(lerobot_path).read_bytes()
     stats = video_frame_stats(frames)
-    _, staged = stats_from_arrays(stats_to_arrays({"f": episode_frame_reductions(frames).to_arrays()}))
-    restaged = stats_from_reductions(FrameReductions.from_arrays(staged["f"]))
-    assert list(stats) == list(lerobot_stats) == list(restaged)
-    for key, value in lerobot_stats.items():
-        assert stats[key].dtype == value.dtype and stats[key].shape == value.shape, key
-        assert np.array_equal(stats[key], value) and np.array_equal(restaged[key], value), key
+    # what a worker stages (the finished statistics), and what an earlier version staged (the reductions)
+    _, staged = stats_from_arrays(stats_to_arrays({"f": stats,
+                                                   "r": episode_frame_reductions(frames).to_arrays()}))
+    restaged = stats_from_reductions(FrameReductions.from_arrays(staged["r"]))
+    for got in (stats, restaged, image_frame_stats(staged["f"]), image_frame_stats(staged["r"])):
+        assert list(got) == list(lerobot_stats)
+        for key, value in lerobot_stats.items():
+            assert got[key].dtype == value.dtype and got[key].shape == value.shape, key
+            assert np.array_equal(got[key], value), key
 
 
 def test_a_worker_builds_the_payload_without_lerobot_or_pytorch(tmp_path):

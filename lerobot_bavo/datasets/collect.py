@@ -232,9 +232,9 @@ class Collector(DatasetSession):
 
     def _session_opener(self, timings: dict, t_start: float):
         """What opens each writer session: `DirectWriterSession` (the files LeRobot's writer makes, written
-        without importing LeRobot) when the dataset stores video, every episode's mp4 encoded by its worker;
-        LeRobot's writer (`WriterSession`) for a dataset without video."""
-        if self.cfg.use_videos:
+        without importing LeRobot) when the workers encode every episode's mp4 (a dataset with video);
+        LeRobot's writer (`WriterSession`) otherwise (a dataset without video)."""
+        if self._video is not None:
             from lerobot_bavo.datasets.direct_writer import DirectWriterSession
 
             return functools.partial(DirectWriterSession, self, timings, t_start)

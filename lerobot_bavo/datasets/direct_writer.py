@@ -15,8 +15,8 @@ episode's mp4 and statistics from its worker, as `WriterSession._save_prebuilt` 
   `load_stats` reads it) and the last episode row (where LeRobot's writer continues: the next data, video and
   episode files);
 - per episode: the writer-assigned columns (`episode_index`, `frame_index`, `timestamp`, `index`,
-  `task_index`) as LeRobot computes them, the episode statistics (the worker's, plus `episode_stats` for the
-  assigned columns, plus the image statistics finished from the worker's frame reductions), the parquet rows
+  `task_index`) as LeRobot computes them, the episode statistics (the worker's, image statistics included,
+  plus `episode_stats` for the assigned columns), the parquet rows
   (LeRobot's table, file choice and writer settings), the mp4 (moved into a new file, or appended with
   LeRobot's concatenation, or a new file once the current one is full), the video's `info` entry for
   episode 0, the episode row (buffered and written ten at a time, LeRobot's file choice included), the
@@ -44,12 +44,11 @@ import numpy as np
 from lerobot_bavo.datasets import lerobot_format as F
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import CollectionError
+from lerobot_bavo.datasets.episode_payload import image_frame_stats
 from lerobot_bavo.datasets.episode_stats import compute_episode_stats
-from lerobot_bavo.datasets.frame_reductions import FrameReductions
 from lerobot_bavo.datasets.metadata import read_info
 from lerobot_bavo.datasets.staging import staged_video
 from lerobot_bavo.datasets.video_codec import encoder_record
-from lerobot_bavo.datasets.video_stats import stats_from_reductions
 from lerobot_bavo.datasets.writer import CommitSession
 
 
@@ -132,9 +131,8 @@ class DirectWriterSession(CommitSession):
                                   f"{ {k: (got[k], e) for k, e in expected.items() if got[k] != e} }")
         metadata = self._write_rows(table, n)
         for key in self.video_keys:
-            reductions = stats.get(key)
-            if reductions is not None:  # LeRobot scales its encoder's statistics to [0, 1]
-                raw = stats_from_reductions(FrameReductions.from_arrays(reductions))
+            raw = image_frame_stats(stats.get(key))  # the worker's
+            if raw is not None:  # LeRobot scales its encoder's statistics to [0, 1]
                 episode_stats[key] = {
                     k: v if k == "count" else np.squeeze(v.reshape(1, -1, 1, 1) / 255.0, axis=0)
                     for k, v in raw.items()}
@@ -207,8 +205,10 @@ class DirectWriterSession(CommitSession):
 
     def _write_video(self, key: str, episode_index: int, staged: Path) -> dict:
         """LeRobot's `_save_episode_video` with the worker's mp4: the session's first episode starts the file
-        after the dataset's last one; a later one is appended to the current file unless that would pass the
-        size limit. Episode 0 also records the video's properties in `info.json`."""
+        after the dataset's last one; a later one is appended to the current file (LeRobot's concatenation of
+        the file and the mp4, at once: concatenating several at the end would not give the same bytes, the
+        mp4's bitrate box records the chain) unless that would pass the size limit. Episode 0 also records
+        the video's properties in `info.json`."""
         root, info = self.session.root, self.info
         episode_mb = F.size_in_mb(staged)
         duration = F.video_duration_s(staged)

@@ -36,7 +36,7 @@ import numpy as np
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import CollectionError
 from lerobot_bavo.datasets.collection_record import PendingCommit
-from lerobot_bavo.datasets.frame_reductions import FrameReductions
+from lerobot_bavo.datasets.episode_payload import image_frame_stats
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
     arrow_episode_tables,
@@ -49,7 +49,6 @@ from lerobot_bavo.datasets.lerobot_private import (
 )
 from lerobot_bavo.datasets.staging import load_staged_payload, staged_video
 from lerobot_bavo.datasets.video_codec import encoder_threads, rgb_encoder
-from lerobot_bavo.datasets.video_stats import stats_from_reductions
 from lerobot_bavo.runtime.files import restore_default_mode
 
 logger = logging.getLogger("bavo-collect")
@@ -251,10 +250,7 @@ class WriterSession(CommitSession):
         self._known_stats.update({k: v for k, v in stats.items() if k in cols})
         video = staged_video(session.staging, summary)
         if video is not None and session.cfg.use_videos:
-            reductions = stats.get(S.OBS_IMAGE)
-            frame_stats = None if reductions is None else \
-                stats_from_reductions(FrameReductions.from_arrays(reductions))
-            self._save_prebuilt(cols, n, video, frame_stats)
+            self._save_prebuilt(cols, n, video, image_frame_stats(stats.get(S.OBS_IMAGE)))
         else:
             description = session.settings["task_description"]
             for t in range(n):
