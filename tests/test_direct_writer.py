@@ -1,5 +1,4 @@
-"""`direct_writer.DirectWriterSession` writes the files LeRobot 0.6.1's writer makes, byte for byte (issue
-30).
+"""`direct_writer.DirectWriterSession` writes the files LeRobot 0.6.1's writer makes (issue 30).
 
 The same staged episodes (synthetic columns with the BAVO schema, each with its worker-encoded mp4 and worker
 statistics, as `staging.stage_episode` stages them) go through LeRobot's writer (`writer.WriterSession`, what
@@ -7,7 +6,8 @@ statistics, as `staging.stage_episode` stages them) go through LeRobot's writer 
 writer sessions: a new dataset, sessions that resume it, a session of more than ten episodes (LeRobot writes
 episode rows ten at a time and then, by its own size estimate, starts a new episode-table file), and with tiny
 file-size limits that make both writers start new data and video files inside a session. Every file must be
-the same bytes; `meta/stats.json` the same values (LeRobot's key order varies from run to run).
+the same bytes (`meta/stats.json` the same values: LeRobot's key order varies from run to run), but for the
+data files written with the page encoding `bavo-collect` uses, which must hold the same tables.
 """
 
 from __future__ import annotations
@@ -73,7 +73,8 @@ def _stage(session: DatasetSession, seed: int, features: dict) -> dict:
     return summary
 
 
-def _write(root: Path, sessions: list[list[int]], direct: bool, sizes: dict | None, codec: str) -> None:
+def _write(root: Path, sessions: list[list[int]], direct: bool, sizes: dict | None, codec: str,
+           lerobot_encoding: bool = True) -> None:
     session = DatasetSession(_config(root, codec))
     lock = session.lock()
     try:
@@ -86,7 +87,7 @@ def _write(root: Path, sessions: list[list[int]], direct: bool, sizes: dict | No
         features = json.loads((root / "meta" / "info.json").read_text())["features"]
         for seeds in sessions:
             summaries = [_stage(session, seed, features) for seed in seeds]
-            writer = DirectWriterSession(session) if direct else \
+            writer = DirectWriterSession(session, lerobot_encoding=lerobot_encoding) if direct else \
                 WriterSession(session, max(s["length"] for s in summaries))
             for summary in summaries:
                 writer.add(summary)
@@ -103,12 +104,19 @@ def _files(root: Path) -> dict[str, bytes]:
 TINY = {"data_files_size_in_mb": 1, "video_files_size_in_mb": 1}
 
 
-@pytest.mark.parametrize("codec,sizes", [("h264", None), ("h264", TINY), ("libsvtav1", None)],
-                         ids=["default-file-sizes", "tiny-file-sizes", "libsvtav1"])
-def test_the_same_files_as_lerobots_writer(tmp_path, codec, sizes):
+@pytest.mark.parametrize("codec,sizes,lerobot_encoding",
+                         [("h264", None, True), ("h264", TINY, True), ("libsvtav1", None, True),
+                          ("h264", None, False)],
+                         ids=["default-file-sizes", "tiny-file-sizes", "libsvtav1", "collection-encoding"])
+def test_the_same_files_as_lerobots_writer(tmp_path, codec, sizes, lerobot_encoding):
+    """With `lerobot_encoding` every file is LeRobot's bytes; with the encoding `bavo-collect` uses (list
+    columns not dictionary-encoded) the data files hold the same tables and every other file is the same."""
+    import pyarrow.parquet as pq
+
     sessions = [[0, 1, 2], [3], [4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15]]
     _write(tmp_path / "lerobot", sessions, direct=False, sizes=sizes, codec=codec)
-    _write(tmp_path / "direct", sessions, direct=True, sizes=sizes, codec=codec)
+    _write(tmp_path / "direct", sessions, direct=True, sizes=sizes, codec=codec,
+           lerobot_encoding=lerobot_encoding)
     theirs, ours = _files(tmp_path / "lerobot"), _files(tmp_path / "direct")
     assert sorted(ours) == sorted(theirs)
     if sizes:  # the tiny limits made both writers start new files inside sessions (episode rows: at the 11th)
@@ -119,6 +127,10 @@ def test_the_same_files_as_lerobots_writer(tmp_path, codec, sizes):
             assert json.loads(ours[name]) == json.loads(theirs[name])
         elif name == "meta/bavo_collection.json":
             assert json.loads(ours[name])["episodes"] == json.loads(theirs[name])["episodes"]
+        elif name.startswith("data/") and not lerobot_encoding:
+            assert ours[name] != theirs[name] and len(ours[name]) < len(theirs[name])
+            table = pq.read_table(tmp_path / "direct" / name)
+            assert table.equals(pq.read_table(tmp_path / "lerobot" / name), check_metadata=True), name
         else:
             assert ours[name] == theirs[name], name
 

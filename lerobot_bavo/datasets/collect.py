@@ -60,6 +60,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import (  # noqa: F401  (offered here too, where they were first)
     STAGING,
@@ -209,6 +211,7 @@ class Collector(DatasetSession):
                 sched.wait()
             if writer is not None:
                 writer.finish()
+            point_cloud_stats = self._point_cloud_stats(pool)
         except BaseException:
             if writer is not None:
                 writer.abort()  # rolls back a session that has not reached its commit point
@@ -218,7 +221,21 @@ class Collector(DatasetSession):
             if pool is not None:
                 pool.shutdown(cancel=True, wait=False)
         run_stats["timings"] = timings
-        return self.finish(run_stats, time.perf_counter() - t_start)
+        return self.finish(run_stats, time.perf_counter() - t_start, point_cloud_stats)
+
+    def _point_cloud_stats(self, pool) -> dict | None:
+        """The dataset's per-channel point-cloud statistics (`hub.point_cloud_channel_stats`, read back from
+        every data file at the end of each run), the channels split between the local workers, idle by now:
+        the same values as in one process, bit for bit (a channel's statistics depend on its values only),
+        and none of that work in this process. None (`finish` computes them here) without local workers."""
+        from lerobot_bavo.datasets.hub import merge_channel_stats, point_cloud_stats_job
+
+        if pool is None or self.cfg.executor != "local" or self.cfg.workers < 2:
+            return None
+        parts = np.array_split(np.arange(S.POINT_CHANNELS), min(self.cfg.workers, S.POINT_CHANNELS))
+        futures = [pool.submit(point_cloud_stats_job, {"root": str(self.root), "channels": part.tolist()})
+                   for part in parts]
+        return merge_channel_stats([f.result() for f in futures])
 
     def _pool(self):
         """Where episodes run: `WorkerPool` (local processes) or `RayPool` (Ray tasks; at most 2 x the

@@ -318,12 +318,20 @@ def _numeric(arrow_type) -> bool:
     return pa.types.is_integer(arrow_type) or pa.types.is_floating(arrow_type)
 
 
-def parquet_writer(path: Path, schema):
-    """LeRobot's parquet writer settings for data and episode files (snappy, dictionary encoding)."""
+def parquet_writer(path: Path, schema, use_dictionary: bool | list[str] = True):
+    """LeRobot's parquet writer settings for data and episode files: snappy, dictionary encoding
+    (`use_dictionary`: True for every column, as LeRobot; or the columns to dictionary-encode)."""
     import pyarrow.parquet as pq
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    return pq.ParquetWriter(path, schema=schema, compression="snappy", use_dictionary=True)
+    return pq.ParquetWriter(path, schema=schema, compression="snappy", use_dictionary=use_dictionary)
+
+
+def scalar_columns(schema) -> list[str]:
+    """The columns of `schema` that hold one value per row (not lists)."""
+    import pyarrow as pa
+
+    return [f.name for f in schema if not (pa.types.is_fixed_size_list(f.type) or pa.types.is_list(f.type))]
 
 
 def episode_rows_table(rows: list[dict]):

@@ -234,7 +234,8 @@ class DatasetSession:
         # a few episodes, growing with the dataset); a column-selective pyarrow scan takes ms.
         key = S.OBS_IMAGE
         columns = ["episode_index", f"videos/{key}/from_timestamp", f"videos/{key}/to_timestamp"]
-        table = pads.dataset(self.root / "meta" / "episodes", format="parquet").to_table(columns=columns)
+        table = pads.dataset(self.root / "meta" / "episodes", format="parquet").to_table(columns=columns,
+                                                                                         use_threads=False)
         rows = {int(e): (f, t) for e, f, t in zip(*(table.column(c).to_pylist() for c in columns))}
         for i, b in enumerate(batch):
             start, stop = rows[first_index + i]
@@ -266,12 +267,15 @@ class DatasetSession:
         except LockedError as e:
             raise CollectionError(str(e)) from None
 
-    def finish(self, run_stats: dict, wall: float) -> dict:
+    def finish(self, run_stats: dict, wall: float, point_cloud_stats: dict | None = None) -> dict:
+        """The end of a run: the per-channel point-cloud statistics (`hub.retile_point_cloud_stats`;
+        `point_cloud_stats`: already computed, `hub.point_cloud_channel_stats`), the record, the card, the
+        push. Returns the run's summary."""
         from lerobot_bavo.datasets.card import write_card
         from lerobot_bavo.datasets.hub import retile_point_cloud_stats
 
         t0 = time.perf_counter()
-        per_channel = retile_point_cloud_stats(self.root)
+        per_channel = retile_point_cloud_stats(self.root, point_cloud_stats)
         run_stats.update(finished=time.strftime("%Y-%m-%d %H:%M:%S"), wall_s=round(wall, 1),
                          committed_after=len(self.record.episodes))
         self.record.runs.append(run_stats)
