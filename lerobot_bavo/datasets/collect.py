@@ -13,16 +13,16 @@ How it works:
   encoded exactly as LeRobot's streaming encoder would with this run's codec settings, and the per-episode
   statistics) and stage it as `<root>/.bavo_staging/seed_*.mp4` and `seed_*.npz` plus a `seed_*.json` marker
   written last (atomic renames). The pool starts first, with one warm-up job per worker (`staging.warm_job`:
-  build the recorder), and this process imports LeRobot only when it opens the dataset (the `bavo-collect`
-  command imports `lerobot_bavo` without registering LeRobot types), so both set-ups run side by side.
+  build the recorder), so the workers' set-up runs beside this process's own.
   Workers and this process keep freed memory for reuse (`runtime.process.retain_freed_memory`).
-- The main process is the only writer into the LeRobotDataset, and does only what must be serial: it
-  appends each kept episode as soon as it and every lower seed are resolved (`writer.StreamingWriter`: one
-  prepared buffer with the worker's video and statistics per episode; LeRobot assigns its indices, writes its
-  parquet rows and appends the mp4; ~0.3 s of CPU against a worker's ~5 s per episode, so one writer keeps up
-  with ~15 workers: docs/results/costs.md); every `--commit-every` episodes form one LeRobot writer session
-  (`LeRobotDataset.resume`, the episodes in seed order, `finalize()`), and only then are they recorded in
-  `meta/bavo_collection.json` (the collection record).
+- The main process is the only writer of the dataset, and does only what must be serial: it appends each
+  kept episode as soon as it and every lower seed are resolved (`writer.StreamingWriter`); every
+  `--commit-every` episodes form one writer session (the episodes in seed order), and only then are they
+  recorded in `meta/bavo_collection.json` (the collection record). With video (the workers encode every
+  mp4) the sessions are `direct_writer.DirectWriterSession`: the files LeRobot 0.6.1's writer makes, written
+  without importing LeRobot or PyTorch (`lerobot_format.py`; the data pages' encoding is the one difference,
+  see there), ~0.1 s of CPU against a worker's ~5 s per episode (docs/results/costs.md); without video,
+  LeRobot's own writer (`writer.WriterSession`: `LeRobotDataset.resume`, the episodes, `finalize()`).
 - Resume: re-running the same command continues where a killed run stopped. LeRobot keeps its
   parquet writers open until `finalize()`, so a kill inside a commit leaves unreadable files. Each
   commit therefore first snapshots `meta/info.json`, `meta/stats.json`, `meta/tasks.parquet` and
@@ -34,17 +34,19 @@ How it works:
   SSE4.2 SIMD: the same quality as LeRobot's SVT-AV1 for several times less CPU, and reproducible bytes),
   `--vcodec libsvtav1` for LeRobot's AV1 (what earlier versions wrote); a dataset being continued keeps its
   own codec.
-- At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`), the
-  dataset card (README.md), and optionally `push_to_hub` (needs `huggingface-cli login`).
+- At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`, read back from every
+  data file; with local workers, which are idle by then, the channels are split between them:
+  `Collector._point_cloud_stats`), the dataset card (README.md), and optionally `push_to_hub` (needs
+  `huggingface-cli login`).
 
-Where each job lives: this module has the CLI and the run (`Collector`, `SeedScheduler`);
-`collect_config.py` the run's settings (`CollectConfig`); `session.py` the dataset-session API every writer
-of a dataset uses (`DatasetSession`: lock, open, stage, commit, finish; `bavo-teleop` too);
-`staging.py` records and stages one episode (the worker side), with `episode_payload.py` (its video and
-statistics); `writer.py` is the writer side (a commit's
-writer session, fed episode by episode); `collection_record.py` is the record; `transaction.py`
-snapshots and rolls back a writer session; `lerobot_private.py` holds every use of LeRobot's private
-internals; `runtime/pool.py` is the worker pool `bavo-eval` uses too.
+Where each job lives: this module has the CLI and the run (`Collector`, `SeedScheduler`); `collect_config.py`
+the run's settings (`CollectConfig`); `session.py` the dataset-session API every writer of a dataset uses
+(`DatasetSession`: lock, open, stage, commit, finish; `bavo-teleop` too); `staging.py` records and stages one
+episode (the worker side), with `episode_payload.py` (its video and statistics); `writer.py` is the writer
+side (a commit's writer session, fed episode by episode; LeRobot's writer) and `direct_writer.py` the same
+without LeRobot; `collection_record.py` is the record; `transaction.py` snapshots and rolls back a writer
+session; `lerobot_private.py` holds every use of LeRobot's private internals; `runtime/pool.py` is the worker
+pool `bavo-eval` uses too.
 """
 
 from __future__ import annotations

@@ -1,15 +1,20 @@
-"""The writer side of `bavo-collect`: LeRobot writer sessions (one per commit), fed episode by episode.
+"""The writer side of `bavo-collect`: writer sessions (one per commit), fed episode by episode.
 
-A commit is one LeRobot writer session (`WriterSession`): snapshot the dataset's metadata and file list, mark
-the commit pending in the collection record, `LeRobotDataset.resume`, append staged episodes in seed order
-(`add`), then `finalize`, check the videos and record the episodes (`close`). Anything that interrupts it
-before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
-after the record says they are committed, so a rolled-back commit is redone from them by the next run.
+A commit is one writer session (`CommitSession`): snapshot the dataset's metadata and file list, mark the
+commit pending in the collection record, open the writer, append staged episodes in seed order (`add`), then
+finish the files, check them and record the episodes (`close`). Anything that interrupts it before the record
+is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only after the record says
+they are committed, so a rolled-back commit is redone from them by the next run. Two writers fill that frame:
+`WriterSession` is LeRobot's (`LeRobotDataset.resume`, `save_episode`, `finalize`, with the shortcuts of
+`lerobot_private`), used by `bavo-teleop` and for datasets without video; `direct_writer.DirectWriterSession`
+writes the same files without importing LeRobot (issue 30), used by `bavo-collect` when its workers encode the
+videos.
 
-What an episode costs here (issue 30): its worker has already encoded the video and computed the statistics
-(`episode_payload.py`), so `add` hands LeRobot one prepared buffer (`_save_prebuilt`) and LeRobot only assigns
-indices, writes the parquet rows and episode metadata and appends the mp4; an episode staged without a video
-(a dataset without video, `bavo-teleop`) is fed frame by frame as before, with its worker's statistics.
+What an episode costs LeRobot's writer (issue 30): its worker has already encoded the video and computed the
+statistics (`episode_payload.py`), so `add` hands LeRobot one prepared buffer (`_save_prebuilt`) and LeRobot
+only assigns indices, writes the parquet rows and episode metadata and appends the mp4; an episode staged
+without a video (a dataset without video, `bavo-teleop`) is fed frame by frame as before, with its worker's
+statistics.
 
 Why episode by episode (`StreamingWriter`): the writer was a large part of collection CPU (LeRobot's video
 stream, parquet, statistics) before issue 30 moved most of it to the workers. When the main loop wrote a
