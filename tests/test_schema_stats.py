@@ -50,3 +50,30 @@ def test_point_cloud_layout_and_a_hand_computed_case():
     np.testing.assert_array_equal(stats["q50"], [5.0, 6.0])
     with pytest.raises(ValueError, match="at least one"):
         S.channel_stats(np.zeros((0, 6), np.float32))
+
+
+def test_channel_subsets_give_the_same_bits_as_all_channels(tmp_path):
+    """`bavo-collect` splits the end-of-run point-cloud statistics between its workers by channel
+    (`hub.point_cloud_channel_stats(root, channels)`, `merge_channel_stats`): the merged statistics are those
+    of all channels at once, bit for bit, across block boundaries and from a dataset's data files."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from lerobot_bavo.datasets.hub import merge_channel_stats, point_cloud_channel_stats
+
+    rng = np.random.default_rng(5)
+    points = (rng.normal(size=((1 << 18) + 1232, S.POINT_CHANNELS)) * [1, 2, 3, 40, 50, 60]
+              ).astype(np.float32)
+    whole = S.channel_stats(points)
+    for parts in ([[0, 1, 2], [3, 4, 5]], [[0, 1], [2, 3], [4, 5]], [[0], [1, 2, 3, 4, 5]]):
+        assert_identical(merge_channel_stats([S.channel_stats(points, channels=p) for p in parts]), whole)
+    flat = points.reshape(-1, 8 * S.POINT_CHANNELS)  # frames of 8 points, as the data files store them
+    for i, rows in enumerate(np.array_split(flat, 3)):  # three data files
+        path = tmp_path / "data" / "chunk-000" / f"file-{i:03d}.parquet"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        column = pa.FixedSizeListArray.from_arrays(pa.array(rows.reshape(-1)), flat.shape[1])
+        pq.write_table(pa.table({S.OBS_POINT_CLOUD: column}), path)
+    merged = merge_channel_stats([point_cloud_channel_stats(tmp_path, [0, 1, 2]),
+                                  point_cloud_channel_stats(tmp_path, [3, 4, 5])])
+    assert_identical(merged, whole)
+    assert_identical(point_cloud_channel_stats(tmp_path), whole)

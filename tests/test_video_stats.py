@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from lerobot.datasets.compute_stats import RunningQuantileStats, auto_downsample_height_width
 
+from lerobot_bavo.datasets import quantile_stats
 from lerobot_bavo.datasets.video_stats import DeferredFrameStats
 
 
@@ -87,6 +88,21 @@ def test_equals_lerobot_on_adversarial_frames(case):
     frames = adversarial_batches(np.random.default_rng(7))[case]
     rows = [encoder_rows(f) for f in frames]
     assert_identical(statistics(DeferredFrameStats, rows), statistics(RunningQuantileStats, rows))
+
+
+@pytest.mark.parametrize("case", ["random_full_range", "widening", "constant_then_wide", "floats"])
+def test_the_pytorch_free_copy_equals_lerobots_class(case):
+    """`quantile_stats.RunningQuantileStats` (what the writing process of `bavo-collect` uses, without
+    PyTorch) is LeRobot's class statement for statement: fed the same batches, the same statistics bit for
+    bit."""
+    rng = np.random.default_rng(11)
+    if case == "floats":  # float batches whose range widens: re-binned histograms, interpolated quantiles
+        batches = [rng.normal(i, 1.0 + i, size=(200, 5)).astype(np.float32) for i in range(8)]
+        batches += [rng.normal(0.0, 3.0, size=(100, 5))]  # float64
+    else:
+        batches = [encoder_rows(f) for f in adversarial_batches(rng)[case]]
+    assert_identical(statistics(quantile_stats.RunningQuantileStats, batches),
+                     statistics(RunningQuantileStats, batches))
 
 
 def test_mixed_batches_keep_lerobots_order():

@@ -225,14 +225,27 @@ def card_kwargs_for(root: str | Path, repo_id: str) -> dict:
 
 
 def write_card(root: str | Path, repo_id: str) -> Path:
-    """Render the card with LeRobot's template and save it as `<root>/README.md`."""
-    from lerobot.datasets.utils import DatasetInfo, create_lerobot_dataset_card
+    """Render the card with LeRobot's template and save it as `<root>/README.md`: what LeRobot's
+    `create_lerobot_dataset_card(tags, dataset_info, repo_id=..., **card_kwargs_for(...))` renders, built
+    here with `huggingface_hub` and LeRobot's template file so that `bavo-collect`'s writing process never
+    imports LeRobot (its dataset modules import PyTorch; `tests/test_lerobot_format.py` compares the two)."""
+    import json
+
+    from huggingface_hub import DatasetCard, DatasetCardData
+
+    from lerobot_bavo.datasets.lerobot_format import card_template, normalized_info
 
     root = Path(root)
     kwargs = card_kwargs_for(root, repo_id)
     tags = kwargs.pop("tags")
-    card = create_lerobot_dataset_card(tags=tags, dataset_info=DatasetInfo.from_dict(read_info(root)),
-                                       repo_id=repo_id, **kwargs)
+    info = normalized_info(read_info(root))
+    kwargs["dataset_structure"] = (
+        f"[meta/info.json](meta/info.json):\n```json\n{json.dumps(info, indent=4)}\n```\n")
+    card_data = DatasetCardData(license=kwargs.get("license"), tags=["LeRobot", *tags],
+                                task_categories=["robotics"],
+                                configs=[{"config_name": "default", "data_files": "data/*/*.parquet"}])
+    card = DatasetCard.from_template(card_data=card_data, template_str=card_template(), repo_id=repo_id,
+                                     **kwargs)
     path = root / "README.md"
     card.save(str(path))
     return path

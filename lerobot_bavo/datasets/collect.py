@@ -13,16 +13,16 @@ How it works:
   encoded exactly as LeRobot's streaming encoder would with this run's codec settings, and the per-episode
   statistics) and stage it as `<root>/.bavo_staging/seed_*.mp4` and `seed_*.npz` plus a `seed_*.json` marker
   written last (atomic renames). The pool starts first, with one warm-up job per worker (`staging.warm_job`:
-  build the recorder), and this process imports LeRobot only when it opens the dataset (the `bavo-collect`
-  command imports `lerobot_bavo` without registering LeRobot types), so both set-ups run side by side.
+  build the recorder), so the workers' set-up runs beside this process's own.
   Workers and this process keep freed memory for reuse (`runtime.process.retain_freed_memory`).
-- The main process is the only writer into the LeRobotDataset, and does only what must be serial: it
-  appends each kept episode as soon as it and every lower seed are resolved (`writer.StreamingWriter`: one
-  prepared buffer with the worker's video and statistics per episode; LeRobot assigns its indices, writes its
-  parquet rows and appends the mp4; ~0.3 s of CPU against a worker's ~5 s per episode, so one writer keeps up
-  with ~15 workers: docs/results/costs.md); every `--commit-every` episodes form one LeRobot writer session
-  (`LeRobotDataset.resume`, the episodes in seed order, `finalize()`), and only then are they recorded in
-  `meta/bavo_collection.json` (the collection record).
+- The main process is the only writer of the dataset, and does only what must be serial: it appends each
+  kept episode as soon as it and every lower seed are resolved (`writer.StreamingWriter`); every
+  `--commit-every` episodes form one writer session (the episodes in seed order), and only then are they
+  recorded in `meta/bavo_collection.json` (the collection record). With video (the workers encode every
+  mp4) the sessions are `direct_writer.DirectWriterSession`: the files LeRobot 0.6.1's writer makes, written
+  without importing LeRobot or PyTorch (`lerobot_format.py`; the data pages' encoding is the one difference,
+  see there), ~0.1 s of CPU against a worker's ~5 s per episode (docs/results/costs.md); without video,
+  LeRobot's own writer (`writer.WriterSession`: `LeRobotDataset.resume`, the episodes, `finalize()`).
 - Resume: re-running the same command continues where a killed run stopped. LeRobot keeps its
   parquet writers open until `finalize()`, so a kill inside a commit leaves unreadable files. Each
   commit therefore first snapshots `meta/info.json`, `meta/stats.json`, `meta/tasks.parquet` and
@@ -34,17 +34,19 @@ How it works:
   SSE4.2 SIMD: the same quality as LeRobot's SVT-AV1 for several times less CPU, and reproducible bytes),
   `--vcodec libsvtav1` for LeRobot's AV1 (what earlier versions wrote); a dataset being continued keeps its
   own codec.
-- At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`), the
-  dataset card (README.md), and optionally `push_to_hub` (needs `huggingface-cli login`).
+- At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`, read back from every
+  data file; with local workers, which are idle by then, the channels are split between them:
+  `Collector._point_cloud_stats`), the dataset card (README.md), and optionally `push_to_hub` (needs
+  `huggingface-cli login`).
 
-Where each job lives: this module has the CLI and the run (`Collector`, `SeedScheduler`);
-`collect_config.py` the run's settings (`CollectConfig`); `session.py` the dataset-session API every writer
-of a dataset uses (`DatasetSession`: lock, open, stage, commit, finish; `bavo-teleop` too);
-`staging.py` records and stages one episode (the worker side), with `episode_payload.py` (its video and
-statistics); `writer.py` is the writer side (a commit's
-writer session, fed episode by episode); `collection_record.py` is the record; `transaction.py`
-snapshots and rolls back a writer session; `lerobot_private.py` holds every use of LeRobot's private
-internals; `runtime/pool.py` is the worker pool `bavo-eval` uses too.
+Where each job lives: this module has the CLI and the run (`Collector`, `SeedScheduler`); `collect_config.py`
+the run's settings (`CollectConfig`); `session.py` the dataset-session API every writer of a dataset uses
+(`DatasetSession`: lock, open, stage, commit, finish; `bavo-teleop` too); `staging.py` records and stages one
+episode (the worker side), with `episode_payload.py` (its video and statistics); `writer.py` is the writer
+side (a commit's writer session, fed episode by episode; LeRobot's writer) and `direct_writer.py` the same
+without LeRobot; `collection_record.py` is the record; `transaction.py` snapshots and rolls back a writer
+session; `lerobot_private.py` holds every use of LeRobot's private internals; `runtime/pool.py` is the worker
+pool `bavo-eval` uses too.
 """
 
 from __future__ import annotations
@@ -60,17 +62,19 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import (  # noqa: F401  (offered here too, where they were first)
     STAGING,
     CollectConfig,
     CollectionError,
 )
-from lerobot_bavo.datasets.episode_payload import video_settings
+from lerobot_bavo.datasets.episode_payload import codec_video_settings
 from lerobot_bavo.datasets.session import DatasetSession
 from lerobot_bavo.datasets.staging import receive_shipped, run_job, ship_job, warm_job
-from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, encoder_threads, quiet_libav, rgb_encoder
-from lerobot_bavo.datasets.writer import StreamingWriter
+from lerobot_bavo.datasets.video_codec import VIDEO_CODECS, quiet_libav
+from lerobot_bavo.datasets.writer import StreamingWriter, WriterSession
 from lerobot_bavo.experts.perturbation import ExecutionNoise
 from lerobot_bavo.features import POINT_FRAMES, ObservationSettings
 from lerobot_bavo.runtime.pool import WorkerPool, add_executor_arguments
@@ -188,12 +192,8 @@ class Collector(DatasetSession):
         bar.set_postfix(discarded=discarded)
         pool = (early_pool or self._pool()) if needed > 0 else None
         window = pool.max_in_flight if on_ray and pool is not None else max(1, 2 * cfg.workers)
-        writer = None
-        if needed > 0:
-            from lerobot_bavo.envs.tasks import TASKS
-
-            max_frames = cfg.episode_length or TASKS.lookup(cfg.task).max_episode_steps
-            writer = StreamingWriter(self, needed, cfg.commit_every, max_frames, timings, run_t0=t_start)
+        writer = StreamingWriter(self._session_opener(timings, t_start), needed, cfg.commit_every) \
+            if needed > 0 else None
         try:
             while writer is not None and writer.written < needed:
                 for summary in sched.resolved():  # finished attempts, in seed order
@@ -213,6 +213,7 @@ class Collector(DatasetSession):
                 sched.wait()
             if writer is not None:
                 writer.finish()
+            point_cloud_stats = self._point_cloud_stats(pool)
         except BaseException:
             if writer is not None:
                 writer.abort()  # rolls back a session that has not reached its commit point
@@ -222,7 +223,21 @@ class Collector(DatasetSession):
             if pool is not None:
                 pool.shutdown(cancel=True, wait=False)
         run_stats["timings"] = timings
-        return self.finish(run_stats, time.perf_counter() - t_start)
+        return self.finish(run_stats, time.perf_counter() - t_start, point_cloud_stats)
+
+    def _point_cloud_stats(self, pool) -> dict | None:
+        """The dataset's per-channel point-cloud statistics (`hub.point_cloud_channel_stats`, read back from
+        every data file at the end of each run), the channels split between the local workers, idle by now:
+        the same values as in one process, bit for bit (a channel's statistics depend on its values only),
+        and none of that work in this process. None (`finish` computes them here) without local workers."""
+        from lerobot_bavo.datasets.hub import merge_channel_stats, point_cloud_stats_job
+
+        if pool is None or self.cfg.executor != "local" or self.cfg.workers < 2:
+            return None
+        parts = np.array_split(np.arange(S.POINT_CHANNELS), min(self.cfg.workers, S.POINT_CHANNELS))
+        futures = [pool.submit(point_cloud_stats_job, {"root": str(self.root), "channels": part.tolist()})
+                   for part in parts]
+        return merge_channel_stats([f.result() for f in futures])
 
     def _pool(self):
         """Where episodes run: `WorkerPool` (local processes) or `RayPool` (Ray tasks; at most 2 x the
@@ -233,6 +248,19 @@ class Collector(DatasetSession):
             return RayPool(self.cfg.workers, address=self.cfg.ray_address)
         # expert episodes: no LeRobot / PyTorch in workers
         return WorkerPool(self.cfg.workers, light_import=True)
+
+    def _session_opener(self, timings: dict, t_start: float):
+        """What opens each writer session: `DirectWriterSession` (the files LeRobot's writer makes, written
+        without importing LeRobot) when the workers encode every episode's mp4 (a dataset with video);
+        LeRobot's writer (`WriterSession`) otherwise (a dataset without video)."""
+        if self._video is not None:
+            from lerobot_bavo.datasets.direct_writer import DirectWriterSession
+
+            return functools.partial(DirectWriterSession, self, timings, t_start)
+        from lerobot_bavo.envs.tasks import TASKS
+
+        max_frames = self.cfg.episode_length or TASKS.lookup(self.cfg.task).max_episode_steps
+        return functools.partial(WriterSession, self, max_frames, timings, t_start)
 
     def _job(self, seed: int) -> dict:
         cfg = self.cfg
@@ -248,8 +276,7 @@ class Collector(DatasetSession):
         codec as the LeRobot writer uses it (known once the dataset is open); None without video."""
         if not self.cfg.use_videos:
             return None
-        codec = self.video_codec
-        return video_settings(rgb_encoder(codec), encoder_threads(codec), S.FPS)
+        return codec_video_settings(self.video_codec, S.FPS)
 
     def _check_discards(self, total: int, limit: int, kept: int, bar) -> None:
         bar.set_postfix(discarded=total)
@@ -385,12 +412,6 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("lerobot", "datasets", "libav", "huggingface_hub"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
-    try:
-        import datasets
-
-        datasets.disable_progress_bars()
-    except Exception:
-        pass
     try:
         summary = collect(cfg)
     except (CollectionError, ValueError) as e:

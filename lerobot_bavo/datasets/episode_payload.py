@@ -9,21 +9,22 @@ episode, so the worker that recorded it builds them (`build_payload`) and stages
 - the active camera's video: an mp4 encoded frame by frame with PyAV exactly as LeRobot's streaming encoder
   thread encodes it (`video_utils.StreamingVideoEncoder`: the same codec options, pixel format, frame rate,
   frame timestamps), so the bytes are the same; the options come from the writer's `RGBEncoderConfig`
-  (`video_settings`, computed where LeRobot is loaded) and travel in the job;
-- nearly all of the image statistics LeRobot's encoder thread would compute while encoding: the per-frame
-  reductions of every frame down-sampled as LeRobot does (`frame_reductions.py`, numpy only); the writer
-  finishes them in LeRobot's class (`video_stats.stats_from_reductions`, a few ms), bit for bit;
+  (`video_settings`, or `codec_video_settings` where LeRobot is not loaded) and travel in the job;
+- the image statistics LeRobot's encoder thread would compute while encoding: the per-frame reductions of
+  every frame down-sampled as LeRobot does (`frame_reductions.py`, numpy only), finished in the copy of
+  LeRobot's class that needs no PyTorch (`video_stats.stats_from_reductions`, bit for bit); the writer only
+  scales them as LeRobot's writer does (`image_frame_stats` also finishes reductions staged by an earlier
+  version, which left that step to the writer);
 - the statistics of every numeric column, with `episode_stats.vector_stats` on the arrays LeRobot's writer
   would stack from the frames (bit for bit: the same function on the same arrays,
   `tests/test_episode_payload.py`).
 
-The writer (`writer.WriterSession`) then hands LeRobot the episode as one buffer with these parts ready
-(`lerobot_private.prebuilt_episode_videos`, `episode_stats.compute_episode_stats(known=...)`): LeRobot still
-assigns the episode's indices, writes its parquet rows and metadata and appends the mp4 to its video file,
-which is all that is left in the writing process.
+The writer (`direct_writer.DirectWriterSession`, or LeRobot's through `writer.WriterSession`) then only
+assigns the episode's indices, writes its parquet rows and metadata and appends the mp4 to its video file.
 
 A worker imports neither LeRobot nor PyTorch for any of this (PyAV and numpy only): LeRobot's statistics
-module imports PyTorch, ~2.8 s of CPU per worker process, which is why the image statistics are split.
+module imports PyTorch, ~2.8 s of CPU per worker process, so the image statistics are LeRobot's computation
+split in two numpy-only parts (`frame_reductions.py`, `quantile_stats.py`).
 """
 
 from __future__ import annotations
@@ -45,6 +46,17 @@ def video_settings(rgb_encoder, encoder_threads: int | None, fps: int) -> dict:
     options as strings (LeRobot's own translation, `get_codec_options`). Plain data: it travels in a job."""
     return {"vcodec": rgb_encoder.vcodec, "pix_fmt": rgb_encoder.pix_fmt, "fps": int(fps),
             "options": dict(rgb_encoder.get_codec_options(encoder_threads, as_strings=True))}
+
+
+def codec_video_settings(codec: str, fps: int) -> dict:
+    """`video_settings(rgb_encoder(codec), encoder_threads(codec), fps)` for a codec of
+    `video_codec.VIDEO_CODECS`, without importing LeRobot (`video_codec.encoder_record` / `codec_options`: the
+    same values, tested)."""
+    from lerobot_bavo.datasets.video_codec import codec_options, encoder_record
+
+    record = encoder_record(codec)
+    return {"vcodec": record["vcodec"], "pix_fmt": record["pix_fmt"], "fps": int(fps),
+            "options": codec_options(codec)}
 
 
 def encoder_options(settings: dict) -> dict[str, str]:
@@ -79,8 +91,7 @@ def encode_video(frames: np.ndarray, path: Path, settings: dict) -> None:
 
 def video_frame_stats(frames: np.ndarray) -> dict[str, np.ndarray] | None:
     """The raw statistics LeRobot's streaming encoder thread reports for (T, H, W, C) uint8 frames (before the
-    writer scales them to [0, 1]), None for fewer than 2 frames as LeRobot. Where LeRobot is loaded (the
-    writer, tests); a worker stages `frame_reductions.episode_frame_reductions` instead."""
+    writer scales them to [0, 1]), None for fewer than 2 frames as LeRobot. numpy only (no LeRobot)."""
     from lerobot_bavo.datasets.video_stats import stats_from_reductions
 
     reductions = episode_frame_reductions(frames)
@@ -100,18 +111,30 @@ def column_stats(columns: dict[str, np.ndarray], skip: tuple[str, ...] = ()) -> 
 def build_payload(columns: dict[str, np.ndarray], image_key: str, video: dict | None,
                   video_path: Path | None) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
     """The episode's staged columns and its statistics. With `video` (settings from `video_settings`), the
-    `image_key` column is encoded to `video_path`, its frames' reductions (`frame_reductions`, from which the
-    writer finishes LeRobot's image statistics: `video_stats.stats_from_reductions`) are returned under
-    `image_key`, and it is left out of the columns (the writer never needs the pixels)."""
+    `image_key` column is encoded to `video_path`, the raw image statistics LeRobot's streaming encoder would
+    report for its frames (`video_frame_stats`, None for fewer than 2 frames) are returned under `image_key`,
+    and it is left out of the columns (the writer never needs the pixels)."""
     stats = column_stats(columns, skip=(image_key,))
     if video is None:
         return columns, stats
     frames = columns[image_key]
     encode_video(frames, video_path, video)
-    reductions = episode_frame_reductions(frames)
-    if reductions is not None:
-        stats[image_key] = reductions.to_arrays()
+    frame_stats = video_frame_stats(frames)
+    if frame_stats is not None:
+        stats[image_key] = frame_stats
     return {k: v for k, v in columns.items() if k != image_key}, stats
+
+
+def image_frame_stats(staged: dict[str, np.ndarray] | None) -> dict[str, np.ndarray] | None:
+    """The raw image statistics of a staged episode (what `build_payload` put under the image key): as they
+    are, or finished from the frame reductions an earlier version staged instead; None when there are
+    none."""
+    if staged is None or "min" in staged:
+        return staged
+    from lerobot_bavo.datasets.frame_reductions import FrameReductions
+    from lerobot_bavo.datasets.video_stats import stats_from_reductions
+
+    return stats_from_reductions(FrameReductions.from_arrays(staged))
 
 
 def stats_to_arrays(stats: dict[str, dict]) -> dict[str, np.ndarray]:

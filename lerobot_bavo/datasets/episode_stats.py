@@ -123,10 +123,12 @@ def compute_episode_stats(
 
     `known`: statistics already computed for some features (by the worker that recorded the episode, with
     `vector_stats` on the same arrays: `episode_payload.column_stats`); they are used as they are, in the
-    order of `episode_data`, so the result is the same dict."""
-    from lerobot.datasets import compute_stats as lerobot_stats
-
+    order of `episode_data`, so the result is the same dict. LeRobot (and PyTorch) is imported only for what
+    goes to its own code (images, videos, other quantiles, one-frame episodes), which a `bavo-collect`
+    episode never has."""
     if quantile_list is not None and tuple(quantile_list) != QUANTILES:
+        from lerobot.datasets import compute_stats as lerobot_stats
+
         return lerobot_stats.compute_episode_stats(episode_data, features, quantile_list)
     known = known or {}
     stats = {}
@@ -139,6 +141,8 @@ def compute_episode_stats(
             continue
         if dtype in ("image", "video") or not isinstance(data, np.ndarray) or data.ndim not in (1, 2) \
                 or data.shape[0] < 2 or not (np.issubdtype(data.dtype, np.number) or data.dtype == bool):
+            from lerobot.datasets import compute_stats as lerobot_stats
+
             stats.update(
                 lerobot_stats.compute_episode_stats({key: data}, {key: features[key]}, quantile_list)
             )

@@ -81,7 +81,7 @@ def load_bavo_dataset(repo_id: str, root: str | Path | None = None, n_points: in
 
 
 # ------------------------------------------------------------------ statistics
-def retile_point_cloud_stats(root: str | Path) -> dict:
+def retile_point_cloud_stats(root: str | Path, per_channel: dict | None = None) -> dict:
     """Replace the per-element stats of `observation.point_cloud` in `meta/stats.json` by exact
     per-channel stats (over all frames and points) tiled to the flat (N * 6,) layout.
 
@@ -90,20 +90,15 @@ def retile_point_cloud_stats(root: str | Path) -> dict:
     Tiled per-channel stats make LeRobot's element-wise normaliser equal to ManiFlow's per-channel
     `limits` normalisation. Run it again after LeRobot's `delete_episodes` / `merge_datasets`,
     which re-aggregate per-element episode stats. Returns the per-channel (6,) stats.
-    """
-    import pyarrow.parquet as pq
 
+    `per_channel`: the stats `point_cloud_channel_stats(root)` gives, when computed elsewhere (`bavo-collect`
+    splits the channels between its workers, `merge_channel_stats`); computed here when None.
+    """
     root = Path(root)
     info = read_info(root)
     n = S.infer_n_points(info["features"])
-    chunks = []
-    for p in sorted((root / "data").glob("*/*.parquet")):
-        col = pq.read_table(p, columns=[S.OBS_POINT_CLOUD]).column(0)
-        flat = np.asarray(col.combine_chunks().flatten().to_numpy(zero_copy_only=False), dtype=np.float32)
-        chunks.append(flat.reshape(-1, S.POINT_CHANNELS))
-    if not chunks:
-        raise ValueError(f"dataset at {root} has no data files")
-    per_channel = S.channel_stats(np.concatenate(chunks))
+    if per_channel is None:
+        per_channel = point_cloud_channel_stats(root)
     stats_path = root / "meta" / "stats.json"
     stats = json.loads(stats_path.read_text()) if stats_path.exists() else {}
     tiled = S.tile_channel_stats(per_channel, n)
@@ -112,6 +107,32 @@ def retile_point_cloud_stats(root: str | Path) -> dict:
     tmp.write_text(json.dumps(stats, indent=4))
     tmp.replace(stats_path)
     return per_channel
+
+
+def point_cloud_channel_stats(root: str | Path, channels: list[int] | None = None) -> dict:
+    """`schema.channel_stats` of every point of every frame of the dataset at `root` (all its data files), for
+    the point channels `channels` (default: all 6), each (len(channels),): the subsets of a split put together
+    (`merge_channel_stats`) are the statistics of all channels, bit for bit."""
+    import pyarrow.parquet as pq
+
+    chunks = []
+    for p in sorted((Path(root) / "data").glob("*/*.parquet")):
+        col = pq.read_table(p, columns=[S.OBS_POINT_CLOUD], use_threads=False).column(0)
+        flat = np.asarray(col.combine_chunks().flatten().to_numpy(zero_copy_only=False), dtype=np.float32)
+        chunks.append(flat.reshape(-1, S.POINT_CHANNELS))
+    if not chunks:
+        raise ValueError(f"dataset at {root} has no data files")
+    return S.channel_stats(np.concatenate(chunks), channels=channels)
+
+
+def point_cloud_stats_job(job: dict) -> dict:
+    """`point_cloud_channel_stats(job["root"], job["channels"])`, as a worker-pool job."""
+    return point_cloud_channel_stats(job["root"], job["channels"])
+
+
+def merge_channel_stats(parts: list[dict]) -> dict:
+    """The statistics of all channels from those of consecutive channel subsets, in channel order."""
+    return {k: parts[0][k] if k == "count" else np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
 # ------------------------------------------------------------------ Hub

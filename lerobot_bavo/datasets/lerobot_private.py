@@ -19,9 +19,9 @@ offer:
    gives the same statistics bit for bit (tested against LeRobot's function) without the histograms.
 4. Cheaper streaming image statistics. LeRobot's video encoder thread updates a
    `compute_stats.RunningQuantileStats` with every frame (a float32 reduction and histograms per
-   frame). `deferred_video_frame_stats` swaps in `datasets.video_stats.DeferredFrameStats`,
-   a subclass that replays the same updates once per episode, bit for bit; it relies on the parent's
-   private fields (`STATS_FIELDS`).
+   frame). `deferred_video_frame_stats` swaps in `datasets.video_stats.DeferredFrameStats`, which
+   replays the same updates once per episode, bit for bit (a subclass of `datasets.quantile_stats`'
+   copy of LeRobot's class, tested against LeRobot's).
 5. A cheaper episode table. `DatasetWriter._save_episode_data` builds each episode's table with
    `datasets.Dataset.from_dict` (mostly Python work per column and feature bookkeeping) and writes
    `with_format("arrow")[:]` of it. `arrow_episode_tables` gives LeRobot's writer module a `datasets` whose
@@ -61,8 +61,6 @@ from __future__ import annotations
 
 import contextlib
 
-import numpy as np
-
 # (what, where): the private names this module touches.
 WRITER_FIELDS = ("_pq_writer", "_finalized", "_streaming_encoder")
 META_FIELDS = ("_metadata_buffer", "_pq_writer", "_finalized")
@@ -74,9 +72,6 @@ WRITER_MODULE_ATTRIBUTES = ("embed_images", "compute_episode_stats", "datasets")
 METADATA_MODULE_ATTRIBUTES = ("write_stats",)  # lerobot.datasets.dataset_metadata
 # lerobot.datasets.compute_stats, read by the encoder thread
 STATS_MODULE_ATTRIBUTES = ("RunningQuantileStats",)
-STATS_FIELDS = ("_count", "_mean", "_mean_of_squares", "_min", "_max", "_histograms", "_bin_edges",
-                # RunningQuantileStats internals DeferredFrameStats uses
-                "_num_quantile_bins", "_adjust_histograms")
 
 
 class LeRobotInternalsChanged(RuntimeError):
@@ -110,10 +105,6 @@ def check_private_api(dataset=None) -> None:
     missing += [
         f"lerobot.datasets.compute_stats.{a}" for a in STATS_MODULE_ATTRIBUTES if not hasattr(stats_mod, a)
     ]
-    if hasattr(stats_mod, "RunningQuantileStats"):
-        probe = stats_mod.RunningQuantileStats()
-        probe.update(np.zeros((2, 3), dtype=np.float32))
-        missing += [f"RunningQuantileStats.{f}" for f in STATS_FIELDS if not hasattr(probe, f)]
     if dataset is not None:
         writer, meta = getattr(dataset, "writer", None), getattr(dataset, "meta", None)
         if writer is None:
@@ -370,49 +361,16 @@ def arrow_table_of(mapping: dict, features):
     where this shortcut does not apply: `features` must be a `datasets.Features` whose columns are all numeric
     `Value`s or fixed-length `List`s of numeric `Value`s (Arrow primitive or fixed_size_list types), named
     exactly by `mapping`, and each column a numpy array of the feature's dtype with n rows of that many values
-    (or, for a plain float feature, of another float dtype, cast as `datasets` casts it).
+    (or, for a plain float feature, of another float dtype, cast as `datasets` casts it):
+    `lerobot_format.episode_table` on the features' Arrow schema.
     """
     import datasets
-    import pyarrow as pa
 
-    if (
-        not isinstance(features, datasets.Features)
-        or not isinstance(mapping, dict)
-        or set(mapping) != set(features)
-    ):
+    from lerobot_bavo.datasets.lerobot_format import episode_table
+
+    if not isinstance(features, datasets.Features):
         return None
-    schema = features.arrow_schema
-    arrays, n = [], None
-    for name, typ in zip(schema.names, schema.types):
-        value = mapping[name]
-        if not isinstance(value, np.ndarray) or value.ndim == 0:
-            return None
-        if n is None:
-            n = value.shape[0]
-        # (LeRobot never saves an empty episode; datasets' own path decides)
-        if value.shape[0] != n or n == 0:
-            return None
-        if pa.types.is_fixed_size_list(typ):
-            item = typ.value_type
-            if not _numeric(item) or value.dtype != item.to_pandas_dtype() or value[0].size != typ.list_size:
-                return None
-            flat = pa.array(np.ascontiguousarray(value).reshape(-1), type=item)
-            arrays.append(pa.FixedSizeListArray.from_arrays(flat, typ.list_size))
-        elif _numeric(typ) and value.ndim == 1 and value.dtype == typ.to_pandas_dtype():
-            arrays.append(pa.array(value, type=typ))
-        elif pa.types.is_floating(typ) and value.ndim == 1 and value.dtype.kind == "f":
-            # LeRobot's timestamps arrive as float64 for a float32 feature; `datasets` casts them with
-            # `Array.cast`, and so does this
-            arrays.append(pa.array(value).cast(typ))
-        else:
-            return None
-    return pa.Table.from_arrays(arrays, schema=schema)
-
-
-def _numeric(arrow_type) -> bool:
-    import pyarrow as pa
-
-    return pa.types.is_integer(arrow_type) or pa.types.is_floating(arrow_type)
+    return episode_table(mapping, features.arrow_schema)
 
 
 @contextlib.contextmanager

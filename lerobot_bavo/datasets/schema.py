@@ -270,7 +270,8 @@ def unflatten_camera_pose(x):
 
 
 # ------------------------------------------------------------------ per-channel statistics
-def channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)) -> dict[str, np.ndarray]:
+def channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99),
+                  channels: list[int] | None = None) -> dict[str, np.ndarray]:
     """Statistics over all leading axes of (..., C) values, per channel: LeRobot's stat keys.
 
     Returns min, max, mean, std (population), count and q01/q10/q50/q90/q99, each (C,) (count (1,)).
@@ -281,18 +282,24 @@ def channel_stats(values: np.ndarray, quantiles=(0.01, 0.10, 0.50, 0.90, 0.99)) 
     the sums for the mean and the std in row blocks (`_row_sum`), each block continuing the previous total
     as numpy's axis-0 sum adds rows, instead of in arrays as large as the input.
     `tests/test_schema_stats.py` checks it against numpy's calls.
+
+    `channels`: only these channels' statistics (the mean and std still summed over all channels' rows: the
+    order numpy's axis-0 sum adds in depends on the number of columns, so a subset's sums could differ in
+    the last bit); the subsets of a split put together (`hub.merge_channel_stats`) are the whole, bit for bit.
     """
     rows = np.asarray(values).reshape(-1, values.shape[-1])  # as given (float32 for the point cloud)
     if rows.shape[0] == 0:
         raise ValueError("channel_stats needs at least one value per channel")
+    picked = list(range(rows.shape[1])) if channels is None else list(channels)
     count = np.intp(rows.shape[0])  # what numpy's mean / var divide by
-    by_channel = np.empty((rows.shape[1], rows.shape[0]), dtype=np.float64)
-    by_channel[...] = rows.T  # float64, channel-major, in one pass (no row-major float64 copy of the input)
+    by_channel = np.empty((len(picked), rows.shape[0]), dtype=np.float64)
+    # float64, channel-major, in one pass (no row-major float64 copy of the input)
+    by_channel[...] = rows.T if channels is None else rows[:, picked].T
     mean = np.true_divide(_row_sum(rows, lambda block: block), count)
     squares = _row_sum(rows, lambda block: np.multiply(np.subtract(block, mean, out=block), block, out=block))
     stats = {
-        "min": by_channel.min(axis=1), "max": by_channel.max(axis=1), "mean": mean,
-        "std": np.sqrt(np.true_divide(squares, count)),
+        "min": by_channel.min(axis=1), "max": by_channel.max(axis=1), "mean": mean[picked],
+        "std": np.sqrt(np.true_divide(squares, count))[picked],
         "count": np.array([rows.shape[0]]),
     }
     for q, value in zip(quantiles, _quantiles(by_channel, list(quantiles))):

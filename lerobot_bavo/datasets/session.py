@@ -18,11 +18,12 @@ import numpy as np
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import STAGING, CollectConfig, CollectionError
 from lerobot_bavo.datasets.collection_record import CollectionRecord
+from lerobot_bavo.datasets.lerobot_format import create_dataset
 from lerobot_bavo.datasets.metadata import SIDECAR
 from lerobot_bavo.datasets.staging import STAGED_SUFFIXES, seed_of, staged_path, staged_video
 from lerobot_bavo.datasets.transaction import SnapshotMissing, WriterSessionSnapshot, remove_stray_dirs
 from lerobot_bavo.datasets.verify import check_committed_files
-from lerobot_bavo.datasets.video_codec import DEFAULT_VIDEO_CODEC, recorded_video_codec, rgb_encoder
+from lerobot_bavo.datasets.video_codec import DEFAULT_VIDEO_CODEC, encoder_record, recorded_video_codec
 from lerobot_bavo.datasets.video_codec import record_entry as video_codec_record_entry
 from lerobot_bavo.datasets.writer import WriterSession
 from lerobot_bavo.runtime.files import restore_default_mode
@@ -69,8 +70,6 @@ class DatasetSession:
 
     def open(self) -> None:
         """Create the dataset, or reopen it: check settings, roll back a pending commit, check counts."""
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
         from lerobot_bavo.datasets.metadata import read_info, read_stats
 
         info_path = self.root / "meta" / "info.json"
@@ -85,17 +84,11 @@ class DatasetSession:
 
             features = S.build_features(self.cfg.settings, use_videos=self.cfg.use_videos,
                                         env_state_dim=environment_state_dim(self.cfg.task))
-            ds = LeRobotDataset.create(
-                self.cfg.repo_id,
-                S.FPS,
-                features,
-                root=self.root,
-                robot_type="bavo_av_aloha",
-                use_videos=self.cfg.use_videos,
-                rgb_encoder=rgb_encoder(self.video_codec),
-            )
-            ds.finalize()
-            del ds
+            if self.cfg.use_videos:
+                encoder_record(self.video_codec)  # fails here if this PyAV build cannot encode the codec
+            # what `LeRobotDataset.create(...).finalize()` writes (meta/info.json), without importing LeRobot
+            create_dataset(self.root, S.FPS, features, use_videos=self.cfg.use_videos,
+                           robot_type="bavo_av_aloha")
         record = CollectionRecord.load(self.root)
         info = read_info(self.root)
         # LeRobot.resume would fail on it later with a bare JSONDecodeError
@@ -241,7 +234,8 @@ class DatasetSession:
         # a few episodes, growing with the dataset); a column-selective pyarrow scan takes ms.
         key = S.OBS_IMAGE
         columns = ["episode_index", f"videos/{key}/from_timestamp", f"videos/{key}/to_timestamp"]
-        table = pads.dataset(self.root / "meta" / "episodes", format="parquet").to_table(columns=columns)
+        table = pads.dataset(self.root / "meta" / "episodes", format="parquet").to_table(columns=columns,
+                                                                                         use_threads=False)
         rows = {int(e): (f, t) for e, f, t in zip(*(table.column(c).to_pylist() for c in columns))}
         for i, b in enumerate(batch):
             start, stop = rows[first_index + i]
@@ -273,12 +267,15 @@ class DatasetSession:
         except LockedError as e:
             raise CollectionError(str(e)) from None
 
-    def finish(self, run_stats: dict, wall: float) -> dict:
+    def finish(self, run_stats: dict, wall: float, point_cloud_stats: dict | None = None) -> dict:
+        """The end of a run: the per-channel point-cloud statistics (`hub.retile_point_cloud_stats`;
+        `point_cloud_stats`: already computed, `hub.point_cloud_channel_stats`), the record, the card, the
+        push. Returns the run's summary."""
         from lerobot_bavo.datasets.card import write_card
         from lerobot_bavo.datasets.hub import retile_point_cloud_stats
 
         t0 = time.perf_counter()
-        per_channel = retile_point_cloud_stats(self.root)
+        per_channel = retile_point_cloud_stats(self.root, point_cloud_stats)
         run_stats.update(finished=time.strftime("%Y-%m-%d %H:%M:%S"), wall_s=round(wall, 1),
                          committed_after=len(self.record.episodes))
         self.record.runs.append(run_stats)

@@ -42,7 +42,9 @@ def parquet_rows(path: Path, what: str) -> int:
 
     try:
         f = pq.ParquetFile(path)
-        rows = sum(batch.num_rows for batch in f.iter_batches(batch_size=4096))
+        # a row group at a time (an episode, in a LeRobot data file), on this thread: Arrow's reader threads
+        # and small batches cost 2-4x the CPU for the same pages (docs/results/costs.md)
+        rows = sum(f.read_row_group(i, use_threads=False).num_rows for i in range(f.num_row_groups))
     except Exception as e:  # pyarrow raises ArrowInvalid / OSError / others for damaged files
         raise ValueError(f"corrupted {what} file {path}: {type(e).__name__}: {e}") from e
     if rows != f.metadata.num_rows:
@@ -86,7 +88,7 @@ def _episode_rows(root: Path, columns: list[str]) -> list[dict]:
     for path in sorted((root / EPISODES_DIR).glob("*/*.parquet")):
         parquet_rows(path, "episode metadata")
         try:
-            table = pq.read_table(path, columns=columns)
+            table = pq.read_table(path, columns=columns, use_threads=False)
         except Exception as e:
             raise ValueError(f"corrupted episode metadata file {path}: {type(e).__name__}: {e}") from e
         rows += table.to_pylist()

@@ -37,6 +37,20 @@ _ENCODER_FIELDS = {
     "libsvtav1": {},  # LeRobot's defaults: libsvtav1, yuv420p, g 2, crf 30, preset 12
 }
 _ENCODER_THREADS = {"h264": 1, "libsvtav1": None}
+# Every field of those configs as LeRobot 0.6.1 completes them (`dataclasses.asdict`; `extra_options` is
+# filled in by `encoder_record`), and the codec options it derives from them (`get_codec_options(threads,
+# as_strings=True)`, x264's SIMD limit added by `codec_options`): the same values without importing LeRobot,
+# whose configuration package imports PyTorch (`tests/test_lerobot_format.py` compares them with LeRobot's).
+_ENCODER_RECORDS = {
+    "h264": {"vcodec": "h264", "pix_fmt": "yuv420p", "g": 2, "crf": 20, "preset": "faster", "fast_decode": 0,
+             "video_backend": "pyav"},
+    "libsvtav1": {"vcodec": "libsvtav1", "pix_fmt": "yuv420p", "g": 2, "crf": 30, "preset": 12,
+                  "fast_decode": 0, "video_backend": "pyav"},
+}
+_CODEC_OPTIONS = {
+    "h264": {"g": "2", "crf": "20", "preset": "faster", "threads": "1"},
+    "libsvtav1": {"g": "2", "crf": "30", "preset": "12", "svtav1-params": "fast-decode=0"},
+}
 
 
 def check_video_codec(codec: str) -> str:
@@ -73,6 +87,32 @@ def rgb_encoder(codec: str):
         others = ", ".join(c for c in VIDEO_CODECS if c != codec)
         raise ValueError(f"video codec {codec!r} cannot be used with this PyAV build ({e}); "
                          f"choose another with --vcodec ({others})") from None
+
+
+def encoder_record(codec: str) -> dict:
+    """Every field of `rgb_encoder(codec)` (`dataclasses.asdict`), which LeRobot records in a video feature's
+    `info` as `video.<field>`, without importing LeRobot. A ValueError as `rgb_encoder`'s when this PyAV build
+    cannot encode `codec`."""
+    import av
+
+    record = dict(_ENCODER_RECORDS[check_video_codec(codec)])
+    record["extra_options"] = x264_simd_limit() if codec == "h264" else {}
+    try:
+        av.codec.Codec(record["vcodec"], "w")
+    except Exception as e:  # av.codec.codec.UnknownCodecError
+        others = ", ".join(c for c in VIDEO_CODECS if c != codec)
+        raise ValueError(f"video codec {codec!r} cannot be used with this PyAV build ({e}); "
+                         f"choose another with --vcodec ({others})") from None
+    return record
+
+
+def codec_options(codec: str) -> dict[str, str]:
+    """The codec options LeRobot's encoder opens `codec` with (`rgb_encoder(codec).get_codec_options(
+    encoder_threads(codec), as_strings=True)`), without importing LeRobot."""
+    options = dict(_CODEC_OPTIONS[check_video_codec(codec)])
+    for key, value in encoder_record(codec)["extra_options"].items():  # merged last, never overriding
+        options.setdefault(key, str(value))
+    return options
 
 
 def encoder_threads(codec: str) -> int | None:

@@ -29,15 +29,18 @@ Anything that is not a uint8 batch (float frames, depth maps) goes to LeRobot's 
 kept frames are replayed, so the order of updates is always the original one. `tests/test_video_stats.py`
 compares every statistic bit for bit with LeRobot's class on real episode frames and adversarial ones
 (constant frames, ranges that widen mid-episode, one channel, mixed dtypes).
-`lerobot_private.deferred_video_frame_stats` installs it for the collector's writer sessions.
+`lerobot_private.deferred_video_frame_stats` installs it in LeRobot's writer sessions (`bavo-teleop`,
+datasets without video). It derives from `quantile_stats.RunningQuantileStats`, the copy of LeRobot's class
+that needs no PyTorch, so `bavo-collect`'s writing process (`direct_writer.py`) finishes image statistics
+without importing LeRobot; the tests compare both with LeRobot's own class.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from lerobot.datasets.compute_stats import RunningQuantileStats
 
 from lerobot_bavo.datasets.frame_reductions import FrameReductions, reduce_frames, reducible
+from lerobot_bavo.datasets.quantile_stats import RunningQuantileStats
 
 # every value a uint8 pixel can take, as the float32 batch holds it
 _VALUES = np.arange(256, dtype=np.float32)
@@ -126,7 +129,7 @@ class DeferredFrameStats(RunningQuantileStats):
 
 def stats_from_reductions(red: FrameReductions) -> dict[str, np.ndarray]:
     """LeRobot's statistics of frames reduced elsewhere (`frame_reductions.episode_frame_reductions`): what
-    its streaming encoder thread reports for them."""
+    its streaming encoder thread reports for them. Imports neither LeRobot nor PyTorch."""
     tracker = DeferredFrameStats()
     tracker.add_reductions(red)
     return tracker.get_statistics()

@@ -1,15 +1,20 @@
-"""The writer side of `bavo-collect`: LeRobot writer sessions (one per commit), fed episode by episode.
+"""The writer side of `bavo-collect`: writer sessions (one per commit), fed episode by episode.
 
-A commit is one LeRobot writer session (`WriterSession`): snapshot the dataset's metadata and file list, mark
-the commit pending in the collection record, `LeRobotDataset.resume`, append staged episodes in seed order
-(`add`), then `finalize`, check the videos and record the episodes (`close`). Anything that interrupts it
-before the record is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only
-after the record says they are committed, so a rolled-back commit is redone from them by the next run.
+A commit is one writer session (`CommitSession`): snapshot the dataset's metadata and file list, mark the
+commit pending in the collection record, open the writer, append staged episodes in seed order (`add`), then
+finish the files, check them and record the episodes (`close`). Anything that interrupts it before the record
+is saved rolls it back from the snapshot (`abort`); the staged episodes are deleted only after the record says
+they are committed, so a rolled-back commit is redone from them by the next run. Two writers fill that frame:
+`WriterSession` is LeRobot's (`LeRobotDataset.resume`, `save_episode`, `finalize`, with the shortcuts of
+`lerobot_private`), used by `bavo-teleop` and for datasets without video; `direct_writer.DirectWriterSession`
+writes the same files without importing LeRobot (issue 30), used by `bavo-collect` when its workers encode the
+videos.
 
-What an episode costs here (issue 30): its worker has already encoded the video and computed the statistics
-(`episode_payload.py`), so `add` hands LeRobot one prepared buffer (`_save_prebuilt`) and LeRobot only assigns
-indices, writes the parquet rows and episode metadata and appends the mp4; an episode staged without a video
-(a dataset without video, `bavo-teleop`) is fed frame by frame as before, with its worker's statistics.
+What an episode costs LeRobot's writer (issue 30): its worker has already encoded the video and computed the
+statistics (`episode_payload.py`), so `add` hands LeRobot one prepared buffer (`_save_prebuilt`) and LeRobot
+only assigns indices, writes the parquet rows and episode metadata and appends the mp4; an episode staged
+without a video (a dataset without video, `bavo-teleop`) is fed frame by frame as before, with its worker's
+statistics.
 
 Why episode by episode (`StreamingWriter`): the writer was a large part of collection CPU (LeRobot's video
 stream, parquet, statistics) before issue 30 moved most of it to the workers. When the main loop wrote a
@@ -36,7 +41,7 @@ import numpy as np
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import CollectionError
 from lerobot_bavo.datasets.collection_record import PendingCommit
-from lerobot_bavo.datasets.frame_reductions import FrameReductions
+from lerobot_bavo.datasets.episode_payload import image_frame_stats
 from lerobot_bavo.datasets.lerobot_private import (
     abandon_writer,
     arrow_episode_tables,
@@ -58,22 +63,26 @@ WORKER_COST_KEYS = ("seed", "length", "episode_s", "teacher_s", "payload_s", "st
 ENCODER_QUEUE_SLACK = 16  # frames beyond the longest episode LeRobot's streaming encoder queue can hold
 
 
-class WriterSession:
-    """One commit: a LeRobot writer session appending staged episodes to the dataset of `session`.
+class CommitSession:
+    """One commit: a writer session appending staged episodes to the dataset of `session`, then recorded.
+
+    What every writer does around its files (this class): snapshot the dataset and mark the commit pending
+    before anything is written, load each staged episode (`add`), and at `close` check the new files, record
+    the episodes in the collection record (the commit point) and delete their staged files; `abort` rolls the
+    dataset back to the snapshot. How the files are written is the subclass's: `WriterSession` (LeRobot's
+    writer) and `direct_writer.DirectWriterSession` (the same files without LeRobot), through four hooks:
+    `_open_writer()` (returns the first new episode index), `_append(summary, columns, stats, n)`,
+    `_finish_writing()` (every file whole and closed) and `_drop_writer()` (abandon without writing more).
 
     Args:
         session: the `session.DatasetSession` whose dataset, record, snapshot and staging folder are used.
-        max_frames: the longest episode this session may get (LeRobot's streaming encoder drops frames
-            once its queue is full, so the queue must hold a whole episode).
         timings: the run's timings; appends `episode_write_s` per episode (seconds), `session_s` per session
             (open + finalize seconds) and one `commits` entry per session (`end_s` since `run_t0`, seconds
             spent writing, CPU seconds of this process meanwhile, and each episode's worker-side costs).
         run_t0: `time.perf_counter()` at the start of the run.
     """
 
-    def __init__(self, session, max_frames: int, timings: dict | None = None, run_t0: float | None = None):
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
+    def __init__(self, session, timings: dict | None = None, run_t0: float | None = None):
         self.session = session
         self.timings = {} if timings is None else timings
         self.run_t0 = run_t0  # perf_counter at the run's start, for the commit's `end_s`
@@ -81,8 +90,6 @@ class WriterSession:
         self.discards: list[dict] = []
         self._busy_s, self._cpu_s = 0.0, 0.0
         self._overhead_s = 0.0  # session open + finalize, the per-session cost
-        self._patches = contextlib.ExitStack()
-        self.ds = None
         t0, c0 = time.perf_counter(), time.process_time()
         session.snapshot.take()
         record = session.record
@@ -90,25 +97,7 @@ class WriterSession:
         session.save_record()
         # from here until `close` saves the record, the session is pending: any interruption rolls it back
         try:
-            cfg = session.cfg
-            codec = session.video_codec
-            self.ds = LeRobotDataset.resume(
-                cfg.repo_id,
-                root=session.root,
-                video_backend="pyav",
-                streaming_encoding=cfg.use_videos,
-                encoder_queue_maxsize=max_frames + ENCODER_QUEUE_SLACK,
-                rgb_encoder=rgb_encoder(codec),
-                encoder_threads=encoder_threads(codec),
-            )
-            self.first_index = self.ds.meta.total_episodes
-            self._known_stats: dict = {}  # the next episode's statistics from its worker
-            self._patches.enter_context(skip_noop_image_embedding())
-            self._patches.enter_context(exact_fast_episode_stats(self._known_stats))
-            self._stats_write = self._patches.enter_context(deferred_stats_writes())
-            self._patches.enter_context(memoized_task_index(self.ds))
-            self._patches.enter_context(deferred_video_frame_stats())
-            self._patches.enter_context(arrow_episode_tables())
+            self.first_index = self._open_writer()
         except BaseException:
             self.abort()
             raise
@@ -127,33 +116,146 @@ class WriterSession:
         self.discards.append(summary)
 
     def add(self, summary: dict) -> None:
-        """Append the staged episode of `summary`: as one prepared buffer when its worker encoded the video
-        (`_save_prebuilt`), else frame by frame (`add_frame`; datasets without video, `bavo-teleop`); either
-        way with the statistics its worker computed."""
+        """Append the staged episode of `summary` (its columns and the statistics its worker computed)."""
         t0, c0 = time.perf_counter(), time.process_time()
-        session, ds = self.session, self.ds
+        session = self.session
         seed = int(summary["seed"])
         # the record names the seeds this pending session holds (and the next seed if it closed now)
         session.record.pending_commit = PendingCommit([b["seed"] for b in self.kept] + [seed], seed + 1)
         session.save_record()
         columns, stats = load_staged_payload(session.staging, seed)
         # a dataset begun before a newer optional annotation existed keeps its own features
-        cols = {k: v for k, v in columns.items() if k in ds.features or k not in S.OPTIONAL_ANNOTATION_KEYS}
+        features = self._feature_names()
+        cols = {k: v for k, v in columns.items() if k in features or k not in S.OPTIONAL_ANNOTATION_KEYS}
         n = cols[S.ACTION].shape[0]
         if n != summary["length"]:
             raise CollectionError(
                 f"staged episode seed {seed} has {n} frames, its marker says {summary['length']}"
             )
+        self._append(summary, cols, stats, n)
+        self.kept.append(summary)
+        self.timings.setdefault("episode_write_s", []).append(round(self._account(t0, c0), 3))
+
+    def close(self, next_seed: int | None = None) -> int:
+        """Finalize, check the videos, record the episodes (the commit point), delete their staged files.
+        `next_seed` defaults to the seed after the last episode. Returns the first new episode index."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        session, record = self.session, self.session.record
+        if next_seed is None:
+            next_seed = int(self.kept[-1]["seed"]) + 1 if self.kept else record.next_seed
+        try:
+            self._finish_writing()
+            # LeRobot's concatenated mp4s are 0600
+            restore_default_mode(session.root.glob("videos/*/*/*.mp4"))
+            session.verify_videos(self.first_index, self.kept)
+            for i, b in enumerate(self.kept):
+                record.episodes.append({"episode_index": self.first_index + i, "seed": b["seed"],
+                                        "length": b["length"], "recoveries": b.get("recoveries")})
+            record.discarded.extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
+                                    for d in self.discards)
+            record.next_seed = next_seed
+            record.pending_commit = None
+            record.complete = False
+            session.save_record()
+        except BaseException:
+            logger.warning("interrupted during a commit: rolling it back")
+            self.abort()
+            raise
+        for s in self.kept + self.discards:
+            session.drop_staged(s["seed"])
+        session.snapshot.discard()
+        self._account(t0, c0, overhead=True)
+        self.timings.setdefault("session_s", []).append(round(self._overhead_s, 3))
+        self.timings.setdefault("commits", []).append({
+            "end_s": None if self.run_t0 is None else round(time.perf_counter() - self.run_t0, 3),
+            "busy_s": round(self._busy_s, 3), "cpu_s": round(self._cpu_s, 3),
+            "episodes": [{k: b[k] for k in WORKER_COST_KEYS if k in b} for b in self.kept]})
+        logger.info("committed %d episodes (seeds %s) in %.1f s of writing", len(self.kept),
+                    [b["seed"] for b in self.kept], self._busy_s)
+        return self.first_index
+
+    def abort(self) -> None:
+        """Drop the session and roll the dataset back to its snapshot (nothing of it stays)."""
+        self._drop_writer()
+        self.session.rollback()
+
+    # the subclass's part
+    def _open_writer(self) -> int:
+        raise NotImplementedError
+
+    def _feature_names(self):
+        raise NotImplementedError
+
+    def _append(self, summary: dict, cols: dict, stats: dict, n: int) -> None:
+        raise NotImplementedError
+
+    def _finish_writing(self) -> None:
+        raise NotImplementedError
+
+    def _drop_writer(self) -> None:
+        raise NotImplementedError
+
+
+class WriterSession(CommitSession):
+    """A commit through LeRobot's writer (`LeRobotDataset.resume`, `save_episode`, `finalize`), with the
+    shortcuts of `lerobot_private` (the same files). `bavo-teleop` and datasets without video use it; an
+    episode staged with its mp4 is handed over as one prepared buffer (`_save_prebuilt`), one without frame by
+    frame (`add_frame`).
+
+    Args:
+        session, timings, run_t0: as `CommitSession`'s.
+        max_frames: the longest episode this session may get (LeRobot's streaming encoder drops frames
+            once its queue is full, so the queue must hold a whole episode).
+    """
+
+    def __init__(self, session, max_frames: int, timings: dict | None = None, run_t0: float | None = None):
+        self.max_frames = max_frames
+        self._patches = contextlib.ExitStack()
+        self.ds = None
+        super().__init__(session, timings, run_t0)
+
+    def _open_writer(self) -> int:
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        try:
+            import datasets
+
+            datasets.disable_progress_bars()
+        except Exception:
+            pass
+        session = self.session
+        cfg = session.cfg
+        codec = session.video_codec
+        self.ds = LeRobotDataset.resume(
+            cfg.repo_id,
+            root=session.root,
+            video_backend="pyav",
+            streaming_encoding=cfg.use_videos,
+            encoder_queue_maxsize=self.max_frames + ENCODER_QUEUE_SLACK,
+            rgb_encoder=rgb_encoder(codec),
+            encoder_threads=encoder_threads(codec),
+        )
+        self._known_stats: dict = {}  # the next episode's statistics from its worker
+        self._patches.enter_context(skip_noop_image_embedding())
+        self._patches.enter_context(exact_fast_episode_stats(self._known_stats))
+        self._stats_write = self._patches.enter_context(deferred_stats_writes())
+        self._patches.enter_context(memoized_task_index(self.ds))
+        self._patches.enter_context(deferred_video_frame_stats())
+        self._patches.enter_context(arrow_episode_tables())
+        return self.ds.meta.total_episodes
+
+    def _feature_names(self):
+        return self.ds.features
+
+    def _append(self, summary: dict, cols: dict, stats: dict, n: int) -> None:
+        """As one prepared buffer when its worker encoded the video (`_save_prebuilt`), else frame by frame
+        (`add_frame`); either way with the statistics its worker computed."""
+        session, ds = self.session, self.ds
         self._known_stats.clear()
         self._known_stats.update({k: v for k, v in stats.items() if k in cols})
         video = staged_video(session.staging, summary)
         if video is not None and session.cfg.use_videos:
-            from lerobot_bavo.datasets.video_stats import stats_from_reductions  # imports LeRobot
-
-            reductions = stats.get(S.OBS_IMAGE)
-            frame_stats = None if reductions is None else \
-                stats_from_reductions(FrameReductions.from_arrays(reductions))
-            self._save_prebuilt(cols, n, video, frame_stats)
+            self._save_prebuilt(cols, n, video, image_frame_stats(stats.get(S.OBS_IMAGE)))
         else:
             description = session.settings["task_description"]
             for t in range(n):
@@ -162,8 +264,6 @@ class WriterSession:
                 ds.add_frame(frame)
             ds.save_episode()
         self._known_stats.clear()
-        self.kept.append(summary)
-        self.timings.setdefault("episode_write_s", []).append(round(self._account(t0, c0), 3))
 
     def _save_prebuilt(self, cols: dict, n: int, video, video_stats: dict | None) -> None:
         """`save_episode` of one buffer holding the whole episode, with the worker's mp4 and frame statistics
@@ -206,52 +306,15 @@ class WriterSession:
             videos.put({S.OBS_IMAGE: (link, video_stats)})
             ds.save_episode(episode_data=buffer)
 
-    def close(self, next_seed: int | None = None) -> int:
-        """Finalize, check the videos, record the episodes (the commit point), delete their staged files.
-        `next_seed` defaults to the seed after the last episode. Returns the first new episode index."""
-        t0, c0 = time.perf_counter(), time.process_time()
-        session, record = self.session, self.session.record
-        if next_seed is None:
-            next_seed = int(self.kept[-1]["seed"]) + 1 if self.kept else record.next_seed
-        try:
-            self.ds.finalize()
-            self._stats_write.flush()
-            self._patches.close()
-            # LeRobot's concatenated mp4s are 0600
-            restore_default_mode(session.root.glob("videos/*/*/*.mp4"))
-            session.verify_videos(self.first_index, self.kept)
-            for i, b in enumerate(self.kept):
-                record.episodes.append({"episode_index": self.first_index + i, "seed": b["seed"],
-                                        "length": b["length"], "recoveries": b.get("recoveries")})
-            record.discarded.extend({"seed": d["seed"], "progress": d["progress"], "length": d["length"]}
-                                    for d in self.discards)
-            record.next_seed = next_seed
-            record.pending_commit = None
-            record.complete = False
-            session.save_record()
-        except BaseException:
-            logger.warning("interrupted during a commit: rolling it back")
-            self.abort()
-            raise
-        for s in self.kept + self.discards:
-            session.drop_staged(s["seed"])
-        session.snapshot.discard()
-        self._account(t0, c0, overhead=True)
-        self.timings.setdefault("session_s", []).append(round(self._overhead_s, 3))
-        self.timings.setdefault("commits", []).append({
-            "end_s": None if self.run_t0 is None else round(time.perf_counter() - self.run_t0, 3),
-            "busy_s": round(self._busy_s, 3), "cpu_s": round(self._cpu_s, 3),
-            "episodes": [{k: b[k] for k in WORKER_COST_KEYS if k in b} for b in self.kept]})
-        logger.info("committed %d episodes (seeds %s) in %.1f s of writing", len(self.kept),
-                    [b["seed"] for b in self.kept], self._busy_s)
-        return self.first_index
+    def _finish_writing(self) -> None:
+        self.ds.finalize()
+        self._stats_write.flush()
+        self._patches.close()
 
-    def abort(self) -> None:
-        """Drop the session and roll the dataset back to its snapshot (nothing of it stays)."""
+    def _drop_writer(self) -> None:
         if self.ds is not None:
             abandon_writer(self.ds)
         self._patches.close()
-        self.session.rollback()
 
 
 class StreamingWriter:
@@ -263,13 +326,11 @@ class StreamingWriter:
     reached its commit point is rolled back, and its episodes stay staged for the next run.
     """
 
-    def __init__(self, session, needed: int, commit_every: int, max_frames: int, timings: dict,
-                 run_t0: float | None = None):
-        self.session = session
-        self.needed, self.commit_every, self.max_frames = needed, commit_every, max_frames
-        self.timings, self.run_t0 = timings, run_t0
+    def __init__(self, open_session, needed: int, commit_every: int):
+        self.open_session = open_session  # () -> a new CommitSession
+        self.needed, self.commit_every = needed, commit_every
         self.written = 0  # kept episodes saved into a session (committed or in the open one)
-        self._session: WriterSession | None = None
+        self._session: CommitSession | None = None
         self._held: list[dict] = []  # attempts discarded while no session was open: they go into the next one
 
     def put(self, summary: dict) -> None:
@@ -281,7 +342,7 @@ class StreamingWriter:
                 (self._session.add_discard if self._session is not None else self._held.append)(summary)
                 return
             if self._session is None:
-                self._session = WriterSession(self.session, self.max_frames, self.timings, self.run_t0)
+                self._session = self.open_session()
                 for d in self._held:
                     self._session.add_discard(d)
                 self._held = []
