@@ -78,19 +78,24 @@ def pairwise_distances(X: torch.Tensor) -> torch.Tensor:
     with torch.autocast(device_type=X.device.type, enabled=False):
         Xc = X - X.mean(dim=-2, keepdim=True)  # (..., N, D)
         sq = (Xc * Xc).sum(dim=-1)  # (..., N)
-        sqdist = sq.unsqueeze(-1) + sq.unsqueeze(-2) - 2.0 * (Xc @ Xc.transpose(-1, -2))  # (..., N, N)
+        # |x_i|^2 + |x_j|^2 - 2 x_i.x_j in one (batched) matrix multiply-add
+        gram_update = torch.baddbmm if X.ndim == 3 else torch.addmm
+        sqdist = gram_update(sq.unsqueeze(-1) + sq.unsqueeze(-2), Xc, Xc.transpose(-1, -2), alpha=-2.0)
         floor = torch.finfo(sqdist.dtype).eps ** 2
         positive = sqdist > floor
-        n = X.shape[-2]
-        positive = positive & ~torch.eye(n, dtype=torch.bool, device=X.device)
-        dist = torch.sqrt(sqdist.clamp_min(floor))
-        return torch.where(positive, dist, torch.zeros_like(dist))
+        positive.diagonal(dim1=-2, dim2=-1).fill_(False)
+        return torch.where(positive, torch.sqrt(sqdist.clamp_min(floor)), 0.0)
 
 
 def _mean_pair_distance(D: torch.Tensor) -> torch.Tensor:
-    """mean_{p<q} D_pq of a (..., N, N) distance matrix, shape (..., 1, 1) for broadcasting."""
+    """mean_{p<q} D_pq of a (..., N, N) distance matrix (`pairwise_distances`), shape (..., 1, 1) for
+    broadcasting.
+
+    D is symmetric with a zero diagonal, so this is the mean over all N (N - 1) ordered pairs: a plain sum,
+    without masking the upper triangle (same value up to rounding).
+    """
     n = D.shape[-1]
-    return (D * _upper_mask(D)).sum(dim=(-2, -1), keepdim=True) / (n * (n - 1) // 2)
+    return D.sum(dim=(-2, -1), keepdim=True) / (n * (n - 1))
 
 
 def _relation_from_distances(D_Y: torch.Tensor, D_X: torch.Tensor, eps: float) -> torch.Tensor:
@@ -132,9 +137,9 @@ def teacher_relations(
     if Z0.shape[:-1] != ZF.shape[:-1]:
         raise ValueError(f"Z0 and ZF must be point-aligned; got {tuple(Z0.shape)} and {tuple(ZF.shape)}")
     D0 = pairwise_distances(Z0)
-    R = _relation_from_distances(D0, D0, eps)
-    R_future = _relation_from_distances(pairwise_distances(ZF), D0, eps)
-    return R, R_future - R
+    scale = _mean_pair_distance(D0) + eps  # the current one, for both
+    R = D0 / scale
+    return R, pairwise_distances(ZF) / scale - R
 
 
 def dynamics_weights(dR: torch.Tensor) -> torch.Tensor:
@@ -156,14 +161,19 @@ def dynamics_weights(dR: torch.Tensor) -> torch.Tensor:
         w: (N, N) or (B, N, N), symmetric, every entry >= 0.5.
     """
     _check_square(dR, "dR")
+    b = _point_weights(dR)
+    return torch.sqrt(b.unsqueeze(-1) * b.unsqueeze(-2))
+
+
+def _point_weights(dR: torch.Tensor) -> torch.Tensor:
+    """b (..., N) of `dynamics_weights` (w_ij = sqrt(b_i b_j)), from dR (..., N, N)."""
     n = dR.shape[-1]
-    off_diag = ~torch.eye(n, dtype=torch.bool, device=dR.device)
-    a = (dR.abs() * off_diag).sum(dim=-1) / (n - 1)  # (..., N)
+    # sum_{j != i} |dR_ij|: the row sum less the diagonal term (exactly the masked sum when it is 0)
+    a = (dR.abs().sum(dim=-1) - dR.diagonal(dim1=-2, dim2=-1).abs()) / (n - 1)  # (..., N)
     total = a.sum(dim=-1, keepdim=True)  # (..., 1)
     moving = total > 0
     q = torch.where(moving, n * a / torch.where(moving, total, torch.ones_like(total)), torch.ones_like(a))
-    b = 0.5 + 0.5 * q  # (..., N)
-    return torch.sqrt(b.unsqueeze(-1) * b.unsqueeze(-2))
+    return 0.5 + 0.5 * q  # (..., N)
 
 
 def weighted_l1(A: torch.Tensor, w: torch.Tensor | None = None, per_sample: bool = False) -> torch.Tensor:
@@ -230,6 +240,11 @@ def relational_losses(
     detached copy (they are part of the target). The caller combines the terms as
     ``lambda_rel / 2 * (L_cur + L_evo)``.
 
+    The teacher relations are symmetric with a zero diagonal (as ``teacher_relations`` makes
+    them), and so are the student's: each norm over the pairs i < j is then taken over all ordered
+    pairs i != j, half of it (``_symmetric_pair_norm``): the value of ``weighted_l1`` up to rounding,
+    without the triangle mask or the (N, N) weight matrix.
+
     Args:
         H_cur: (N, d) or (B, N, d) current student tokens.
         H_fut: same shape, predicted future student tokens.
@@ -248,6 +263,24 @@ def relational_losses(
         )
     R_T = R_T.to(R_S.dtype)
     dR_T = dR_T.to(R_S.dtype)
-    L_cur = weighted_l1(R_S - R_T, per_sample=per_sample)
-    L_evo = weighted_l1(dR_S - dR_T, dynamics_weights(dR_T.detach()), per_sample=per_sample)
-    return L_cur, L_evo
+    L_cur = _symmetric_pair_norm(R_S - R_T)
+    L_evo = _symmetric_pair_norm(dR_S - dR_T, _point_weights(dR_T.detach()))
+    return (L_cur, L_evo) if per_sample else (L_cur.mean(), L_evo.mean())
+
+
+def _symmetric_pair_norm(A: torch.Tensor, b: torch.Tensor | None = None) -> torch.Tensor:
+    """``weighted_l1(A, w, per_sample=True)`` of a symmetric A (..., N, N) with a zero diagonal and weights
+    w_ij = sqrt(b_i b_j) given by b (..., N) (``_point_weights``; uniform when None): the (...,) norms.
+
+    Why: with A symmetric and zero on the diagonal, sum_{i<j} w_ij |A_ij| is half of the sum over all
+    pairs, s^T |A| s with s = sqrt(b), and sum_{i<j} w_ij is half of (sum_i s_i)^2 - sum_i b_i: a
+    matrix-vector product instead of the (N, N) weights, the triangle mask and their products. In
+    float32 under autocast too, like the distances.
+    """
+    n = A.shape[-1]
+    if b is None:
+        return A.abs().sum(dim=(-2, -1)) / (n * (n - 1))
+    with torch.autocast(device_type=A.device.type, enabled=False):
+        s = b.sqrt()
+        weighted = (A.abs() @ s.unsqueeze(-1)).squeeze(-1)  # (..., N): sum_j |A_ij| s_j
+        return (weighted * s).sum(dim=-1) / (s.sum(dim=-1) ** 2 - b.sum(dim=-1))
