@@ -116,6 +116,36 @@ class SelfAttention(nn.Module):
         return self.out(_merge_heads(y))
 
 
+class MemoryAttention(torch.autograd.Function):
+    """softmax(q_memory memory^T + q_bias) memory, (B, M, Dm) from q_bias (B, M, 1), q_memory (B, M, Dm) and
+    memory (B, L, Dm): the core of `CrossAttention.attend_memory` without attention dropout, with its
+    gradients written out.
+
+    Why: the memory enters twice (scores and values), and autograd's gradient of the scores' use comes out
+    transposed, (B, Dm, L) laid out as (B, L, Dm), so adding the two costs a strided pass over (B, L, Dm);
+    here the second product is accumulated into the first by the matrix multiply itself (`baddbmm_`). The
+    forward pass is the same operations; the gradients are autograd's up to rounding (the softmax's is
+    written out).
+    """
+
+    @staticmethod
+    def forward(ctx, q_bias: Tensor, q_memory: Tensor, memory: Tensor) -> Tensor:
+        attn = torch.baddbmm(q_bias, q_memory, memory.transpose(1, 2)).softmax(dim=-1)  # (B, M, L)
+        ctx.save_for_backward(q_memory, memory, attn)
+        return torch.bmm(attn, memory)
+
+    @staticmethod
+    def backward(ctx, grad_out: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        q_memory, memory, attn = ctx.saved_tensors
+        grad_attn = torch.bmm(grad_out, memory.transpose(1, 2))
+        # softmax: attn * (g - sum_l g_l attn_l)
+        weighted = attn * grad_attn
+        grad_scores = torch.addcmul(weighted, attn, weighted.sum(dim=-1, keepdim=True), value=-1.0)
+        grad_memory = torch.bmm(attn.transpose(1, 2), grad_out)  # (B, L, Dm): values' use, then scores'
+        grad_memory.baddbmm_(grad_scores.transpose(1, 2), q_memory)
+        return grad_scores.sum(dim=-1, keepdim=True), torch.bmm(grad_scores, memory), grad_memory
+
+
 class CrossAttention(nn.Module):
     """Queries from x, keys/values from a memory. `kv(memory)` can be computed once and reused (the
     observation context is the same for every flow step)."""
@@ -158,11 +188,17 @@ class CrossAttention(nn.Module):
         q = self.q(x).view(b, h_len, heads, -1) * w_k.shape[1] ** -0.5  # SDPA's 1/sqrt(head width)
         q_memory = torch.einsum("bihe,hem->bhim", q, w_k).reshape(b, heads * h_len, -1)  # (B, heads * H, Dm)
         q_bias = torch.einsum("bihe,he->bhi", q, b_k).reshape(b, heads * h_len, 1)
-        attn = torch.baddbmm(q_bias, q_memory, memory.transpose(1, 2)).softmax(dim=-1)  # (B, heads * H, L)
         dropout = self.training and self.dropout > 0
-        if dropout:
-            attn = F.dropout(attn, self.dropout)
-        y = torch.einsum("bhim,hem->bihe", torch.bmm(attn, memory).view(b, heads, h_len, -1), w_v)
+        # MemoryAttention computes in its inputs' dtype: not under autocast
+        if not dropout and not torch.is_autocast_enabled(memory.device.type):
+            attended = MemoryAttention.apply(q_bias, q_memory, memory)  # (B, heads * H, Dm)
+        else:
+            # (B, heads * H, L)
+            attn = torch.baddbmm(q_bias, q_memory, memory.transpose(1, 2)).softmax(dim=-1)
+            if dropout:
+                attn = F.dropout(attn, self.dropout)
+            attended = torch.bmm(attn, memory)
+        y = torch.einsum("bhim,hem->bihe", attended.view(b, heads, h_len, -1), w_v)
         if dropout:
             y = y + attn.sum(dim=-1).view(b, heads, h_len).transpose(1, 2)[..., None] * b_v
         else:
