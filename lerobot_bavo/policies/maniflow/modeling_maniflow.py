@@ -296,7 +296,8 @@ class DiTX(nn.Module):
         per_step = F.linear(states, w_states, self.context_in.bias)[:, :, None]  # (B, To, 1, D)
         # In the projections' dtype (bf16 under autocast), which every block's attention reads it in.
         per_position = self.context_pos.view(1, to, n, -1).to(per_step.dtype)
-        return (F.linear(points, w_points) + (per_step + per_position)).view(b, to * n, -1)
+        # added in place: no (B, To, N, D) temporary for their sum
+        return F.linear(points, w_points).add_(per_step).add_(per_position).view(b, to * n, -1)
 
     def modulations(self, t: Tensor, dt: Tensor) -> list[tuple[Tensor, ...]]:
         """AdaLN-Zero (shift, 1 + scale, gate) x 3 of every block, (B, 1, D) each, from c = proj([emb(t),
