@@ -23,6 +23,7 @@ from torch import Tensor, nn
 
 from lerobot_bavo.features import TEACHER_OCCLUDER, TEACHER_VISIBLE, TEACHER_Z0, TEACHER_ZF, unflatten_points
 from lerobot_bavo.policies.augment import occluder_dropout
+from lerobot_bavo.policies.heap import keep_freed_heap
 
 from .configuration_maniflow import ManiFlowConfig
 
@@ -575,6 +576,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         super().train(mode)
         self.ema_model.eval()  # the EMA copy never uses dropout
         self.invalidate_modulation_cache()
+        if mode:  # training steps reuse the memory the previous one freed (once per process)
+            keep_freed_heap()
         return self
 
     def invalidate_modulation_cache(self) -> None:
