@@ -603,9 +603,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         if self._ema_step_host is None:
             self._ema_step_host = int(self.ema_step.item())
         decay = self.ema_decay(self._ema_step_host)
-        ema_params = list(self.ema_model.parameters())
-        params = [p.detach() for p in self.model.parameters()]
-        torch._foreach_lerp_(ema_params, params, 1.0 - decay)
+        # (no_grad: the online parameters need no detached copies)
+        torch._foreach_lerp_(list(self.ema_model.parameters()), list(self.model.parameters()), 1.0 - decay)
         ema_buffers, buffers = list(self.ema_model.buffers()), list(self.model.buffers())
         if buffers:
             torch._foreach_copy_(ema_buffers, buffers)
