@@ -75,16 +75,48 @@ def pairwise_distances(X: torch.Tensor) -> torch.Tensor:
     _check_points(X, "X")
     if X.dtype in (torch.float16, torch.bfloat16):
         X = X.float()
-    with torch.autocast(device_type=X.device.type, enabled=False):
-        Xc = X - X.mean(dim=-2, keepdim=True)  # (..., N, D)
-        sq = (Xc * Xc).sum(dim=-1)  # (..., N)
-        # |x_i|^2 + |x_j|^2 - 2 x_i.x_j in one (batched) matrix multiply-add
-        gram_update = torch.baddbmm if X.ndim == 3 else torch.addmm
-        sqdist = gram_update(sq.unsqueeze(-1) + sq.unsqueeze(-2), Xc, Xc.transpose(-1, -2), alpha=-2.0)
-        floor = torch.finfo(sqdist.dtype).eps ** 2
-        positive = sqdist > floor
-        positive.diagonal(dim1=-2, dim2=-1).fill_(False)
-        return torch.where(positive, torch.sqrt(sqdist.clamp_min(floor)), 0.0)
+    return _PairwiseDistances.apply(X)
+
+
+def _gram_update(X: torch.Tensor):
+    """torch.baddbmm for batched (B, N, D) operands, torch.addmm for (N, D) ones."""
+    return torch.baddbmm if X.ndim == 3 else torch.addmm
+
+
+class _PairwiseDistances(torch.autograd.Function):
+    """`pairwise_distances` of float32/64 X, with the gradient written out.
+
+    Why: autograd's gradient goes back through the square root, the clamp, the Gram product (twice, one of
+    them transposed) and the squared norms and the centring, a dozen passes over (B, N, D) and (B, N, N).
+    Written out, with S = dL/d(squared distance) = dL/dD / (2 D) where D > 0 (else 0) and G = S + S^T:
+    dL/dXc_i = 2 (sum_j G_ij) Xc_i - 2 sum_j G_ij Xc_j, one batched matrix multiply-add; and dL/dX = dL/dXc,
+    since these sum to zero over the points (G is symmetric), which is what the centring's gradient would
+    remove. Same gradient up to rounding. Not twice differentiable.
+    """
+
+    @staticmethod
+    def forward(ctx, X: torch.Tensor) -> torch.Tensor:
+        with torch.autocast(device_type=X.device.type, enabled=False):
+            Xc = X - X.mean(dim=-2, keepdim=True)  # (..., N, D)
+            sq = (Xc * Xc).sum(dim=-1)  # (..., N)
+            # |x_i|^2 + |x_j|^2 - 2 x_i.x_j in one (batched) matrix multiply-add
+            norms = sq.unsqueeze(-1) + sq.unsqueeze(-2)
+            sqdist = _gram_update(X)(norms, Xc, Xc.transpose(-1, -2), alpha=-2.0)
+            floor = torch.finfo(sqdist.dtype).eps ** 2
+            positive = sqdist > floor
+            positive.diagonal(dim1=-2, dim2=-1).fill_(False)
+            D = torch.where(positive, torch.sqrt(sqdist.clamp_min(floor)), 0.0)
+        ctx.save_for_backward(Xc, D)
+        return D
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_D: torch.Tensor) -> torch.Tensor:
+        Xc, D = ctx.saved_tensors
+        with torch.autocast(device_type=Xc.device.type, enabled=False):
+            S = torch.where(D > 0, grad_D / (2.0 * D), 0.0)  # D > 0 exactly where the distance is kept
+            G = S + S.transpose(-1, -2)
+            return _gram_update(Xc)(Xc * G.sum(dim=-1, keepdim=True), G, Xc, beta=2.0, alpha=-2.0)
 
 
 def _mean_pair_distance(D: torch.Tensor) -> torch.Tensor:
