@@ -17,7 +17,6 @@ zero diagonal, so it carries all the information.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F  # noqa: N812
 
 __all__ = [
     "pairwise_distances",
@@ -75,22 +74,59 @@ def pairwise_distances(X: torch.Tensor) -> torch.Tensor:
     _check_points(X, "X")
     if X.dtype in (torch.float16, torch.bfloat16):
         X = X.float()
-    with torch.autocast(device_type=X.device.type, enabled=False):
-        Xc = X - X.mean(dim=-2, keepdim=True)  # (..., N, D)
-        sq = (Xc * Xc).sum(dim=-1)  # (..., N)
-        sqdist = sq.unsqueeze(-1) + sq.unsqueeze(-2) - 2.0 * (Xc @ Xc.transpose(-1, -2))  # (..., N, N)
-        floor = torch.finfo(sqdist.dtype).eps ** 2
-        positive = sqdist > floor
-        n = X.shape[-2]
-        positive = positive & ~torch.eye(n, dtype=torch.bool, device=X.device)
-        dist = torch.sqrt(sqdist.clamp_min(floor))
-        return torch.where(positive, dist, torch.zeros_like(dist))
+    return _PairwiseDistances.apply(X)
+
+
+def _gram_update(X: torch.Tensor):
+    """torch.baddbmm for batched (B, N, D) operands, torch.addmm for (N, D) ones."""
+    return torch.baddbmm if X.ndim == 3 else torch.addmm
+
+
+class _PairwiseDistances(torch.autograd.Function):
+    """`pairwise_distances` of float32/64 X, with the gradient written out.
+
+    Why: autograd's gradient goes back through the square root, the clamp, the Gram product (twice, one of
+    them transposed) and the squared norms and the centring, a dozen passes over (B, N, D) and (B, N, N).
+    Written out, with S = dL/d(squared distance) = dL/dD / (2 D) where D > 0 (else 0) and G = S + S^T:
+    dL/dXc_i = 2 (sum_j G_ij) Xc_i - 2 sum_j G_ij Xc_j, one batched matrix multiply-add; and dL/dX = dL/dXc,
+    since these sum to zero over the points (G is symmetric), which is what the centring's gradient would
+    remove. Same gradient up to rounding. Not twice differentiable.
+    """
+
+    @staticmethod
+    def forward(ctx, X: torch.Tensor) -> torch.Tensor:
+        with torch.autocast(device_type=X.device.type, enabled=False):
+            Xc = X - X.mean(dim=-2, keepdim=True)  # (..., N, D)
+            sq = (Xc * Xc).sum(dim=-1)  # (..., N)
+            # |x_i|^2 + |x_j|^2 - 2 x_i.x_j in one (batched) matrix multiply-add
+            norms = sq.unsqueeze(-1) + sq.unsqueeze(-2)
+            sqdist = _gram_update(X)(norms, Xc, Xc.transpose(-1, -2), alpha=-2.0)
+            floor = torch.finfo(sqdist.dtype).eps ** 2
+            positive = sqdist > floor
+            positive.diagonal(dim1=-2, dim2=-1).fill_(False)
+            D = torch.where(positive, torch.sqrt(sqdist.clamp_min(floor)), 0.0)
+        ctx.save_for_backward(Xc, D)
+        return D
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_D: torch.Tensor) -> torch.Tensor:
+        Xc, D = ctx.saved_tensors
+        with torch.autocast(device_type=Xc.device.type, enabled=False):
+            S = torch.where(D > 0, grad_D / (2.0 * D), 0.0)  # D > 0 exactly where the distance is kept
+            G = S + S.transpose(-1, -2)
+            return _gram_update(Xc)(Xc * G.sum(dim=-1, keepdim=True), G, Xc, beta=2.0, alpha=-2.0)
 
 
 def _mean_pair_distance(D: torch.Tensor) -> torch.Tensor:
-    """mean_{p<q} D_pq of a (..., N, N) distance matrix, shape (..., 1, 1) for broadcasting."""
+    """mean_{p<q} D_pq of a (..., N, N) distance matrix (`pairwise_distances`), shape (..., 1, 1) for
+    broadcasting.
+
+    D is symmetric with a zero diagonal, so this is the mean over all N (N - 1) ordered pairs: a plain sum,
+    without masking the upper triangle (same value up to rounding).
+    """
     n = D.shape[-1]
-    return (D * _upper_mask(D)).sum(dim=(-2, -1), keepdim=True) / (n * (n - 1) // 2)
+    return D.sum(dim=(-2, -1), keepdim=True) / (n * (n - 1))
 
 
 def _relation_from_distances(D_Y: torch.Tensor, D_X: torch.Tensor, eps: float) -> torch.Tensor:
@@ -132,9 +168,9 @@ def teacher_relations(
     if Z0.shape[:-1] != ZF.shape[:-1]:
         raise ValueError(f"Z0 and ZF must be point-aligned; got {tuple(Z0.shape)} and {tuple(ZF.shape)}")
     D0 = pairwise_distances(Z0)
-    R = _relation_from_distances(D0, D0, eps)
-    R_future = _relation_from_distances(pairwise_distances(ZF), D0, eps)
-    return R, R_future - R
+    scale = _mean_pair_distance(D0) + eps  # the current one, for both
+    R = D0 / scale
+    return R, pairwise_distances(ZF) / scale - R
 
 
 def dynamics_weights(dR: torch.Tensor) -> torch.Tensor:
@@ -156,14 +192,19 @@ def dynamics_weights(dR: torch.Tensor) -> torch.Tensor:
         w: (N, N) or (B, N, N), symmetric, every entry >= 0.5.
     """
     _check_square(dR, "dR")
+    b = _point_weights(dR)
+    return torch.sqrt(b.unsqueeze(-1) * b.unsqueeze(-2))
+
+
+def _point_weights(dR: torch.Tensor) -> torch.Tensor:
+    """b (..., N) of `dynamics_weights` (w_ij = sqrt(b_i b_j)), from dR (..., N, N)."""
     n = dR.shape[-1]
-    off_diag = ~torch.eye(n, dtype=torch.bool, device=dR.device)
-    a = (dR.abs() * off_diag).sum(dim=-1) / (n - 1)  # (..., N)
+    # sum_{j != i} |dR_ij|: the row sum less the diagonal term (exactly the masked sum when it is 0)
+    a = (dR.abs().sum(dim=-1) - dR.diagonal(dim1=-2, dim2=-1).abs()) / (n - 1)  # (..., N)
     total = a.sum(dim=-1, keepdim=True)  # (..., 1)
     moving = total > 0
     q = torch.where(moving, n * a / torch.where(moving, total, torch.ones_like(total)), torch.ones_like(a))
-    b = 0.5 + 0.5 * q  # (..., N)
-    return torch.sqrt(b.unsqueeze(-1) * b.unsqueeze(-2))
+    return 0.5 + 0.5 * q  # (..., N)
 
 
 def weighted_l1(A: torch.Tensor, w: torch.Tensor | None = None, per_sample: bool = False) -> torch.Tensor:
@@ -213,7 +254,40 @@ def student_relations(
     Returns:
         (R_S, dR_S), each (N, N) or (B, N, N).
     """
-    return teacher_relations(F.normalize(H_cur, dim=-1), F.normalize(H_fut, dim=-1), eps=eps)
+    return teacher_relations(_unit_rows(H_cur), _unit_rows(H_fut), eps=eps)
+
+
+def _unit_rows(H: torch.Tensor) -> torch.Tensor:
+    """``F.normalize(H, dim=-1)`` (rows divided by max(norm, 1e-12)), half precision computed in float32 (as
+    F.normalize does under autocast), with its gradient written out (``_UnitRows``)."""
+    if H.dtype in (torch.float16, torch.bfloat16):
+        H = H.float()
+    return _UnitRows.apply(H)
+
+
+class _UnitRows(torch.autograd.Function):
+    """Why: autograd's gradient of x / max(|x|, eps) takes about twice the passes over (..., N, d) of the
+    written-out one, dL/dx = (g - y <g, y>) / max(|x|, eps) for y = x / max(|x|, eps), where the
+    <g, y> term is dropped for rows with |x| < eps (where the clamp holds the divisor constant)."""
+
+    EPS = 1e-12  # F.normalize's
+
+    @staticmethod
+    def forward(ctx, H: torch.Tensor) -> torch.Tensor:
+        with torch.autocast(device_type=H.device.type, enabled=False):
+            norm = torch.linalg.vector_norm(H, dim=-1, keepdim=True)
+            divisor = norm.clamp_min(_UnitRows.EPS)
+            Y = H / divisor
+        ctx.save_for_backward(Y, divisor, norm >= _UnitRows.EPS)
+        return Y
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        Y, divisor, unclamped = ctx.saved_tensors
+        with torch.autocast(device_type=Y.device.type, enabled=False):
+            along = (grad * Y).sum(dim=-1, keepdim=True) * unclamped
+            return torch.addcmul(grad, Y, along, value=-1.0) / divisor
 
 
 def relational_losses(
@@ -229,6 +303,11 @@ def relational_losses(
     The weights w = dynamics_weights(dR^T) come from the teacher only and are computed on a
     detached copy (they are part of the target). The caller combines the terms as
     ``lambda_rel / 2 * (L_cur + L_evo)``.
+
+    The teacher relations are symmetric with a zero diagonal (as ``teacher_relations`` makes
+    them), and so are the student's: each norm over the pairs i < j is then taken over all ordered
+    pairs i != j, half of it (``_symmetric_pair_norm``): the value of ``weighted_l1`` up to rounding,
+    without the triangle mask or the (N, N) weight matrix.
 
     Args:
         H_cur: (N, d) or (B, N, d) current student tokens.
@@ -248,6 +327,24 @@ def relational_losses(
         )
     R_T = R_T.to(R_S.dtype)
     dR_T = dR_T.to(R_S.dtype)
-    L_cur = weighted_l1(R_S - R_T, per_sample=per_sample)
-    L_evo = weighted_l1(dR_S - dR_T, dynamics_weights(dR_T.detach()), per_sample=per_sample)
-    return L_cur, L_evo
+    L_cur = _symmetric_pair_norm(R_S - R_T)
+    L_evo = _symmetric_pair_norm(dR_S - dR_T, _point_weights(dR_T.detach()))
+    return (L_cur, L_evo) if per_sample else (L_cur.mean(), L_evo.mean())
+
+
+def _symmetric_pair_norm(A: torch.Tensor, b: torch.Tensor | None = None) -> torch.Tensor:
+    """``weighted_l1(A, w, per_sample=True)`` of a symmetric A (..., N, N) with a zero diagonal and weights
+    w_ij = sqrt(b_i b_j) given by b (..., N) (``_point_weights``; uniform when None): the (...,) norms.
+
+    Why: with A symmetric and zero on the diagonal, sum_{i<j} w_ij |A_ij| is half of the sum over all
+    pairs, s^T |A| s with s = sqrt(b), and sum_{i<j} w_ij is half of (sum_i s_i)^2 - sum_i b_i: a
+    matrix-vector product instead of the (N, N) weights, the triangle mask and their products. In
+    float32 under autocast too, like the distances.
+    """
+    n = A.shape[-1]
+    if b is None:
+        return A.abs().sum(dim=(-2, -1)) / (n * (n - 1))
+    with torch.autocast(device_type=A.device.type, enabled=False):
+        s = b.sqrt()
+        weighted = (A.abs() @ s.unsqueeze(-1)).squeeze(-1)  # (..., N): sum_j |A_ij| s_j
+        return (weighted * s).sum(dim=-1) / (s.sum(dim=-1) ** 2 - b.sum(dim=-1))

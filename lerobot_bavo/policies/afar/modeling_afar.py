@@ -101,16 +101,19 @@ class AfarModel(ManiFlowModel):
         """Point tokens (the last step's fused) and state features of the DiT-X context, and {"h_cur": H_t (B,
         N, Dp), "h_fut": H^F (B, N, d) when computed}."""
         cfg: AfarConfig = self.config
-        point_feats, state_feats = self.encode_observations(point_cloud, state)  # (B,To,N,Dp), (B,To,Ds)
-        h_cur = point_feats[:, -1]
-        aux = {"h_cur": h_cur}
-        if cfg.use_fusion or need_future:
-            h_fut = self.world_query_former(h_cur, state_feats[:, -1])
-            aux["h_fut"] = h_fut
-            if cfg.use_fusion:
-                h_cond = h_cur + torch.tanh(self.fusion_gate) * self.fusion_proj(h_fut)
-                point_feats = torch.cat([point_feats[:, :-1], h_cond[:, None]], dim=1)
-        return point_feats, state_feats, aux
+        if not (cfg.use_fusion or need_future):
+            point_feats, state_feats = self.encode_observations(point_cloud, state)  # (B,To,N,Dp), (B,To,Ds)
+            return point_feats, state_feats, {"h_cur": point_feats[:, -1]}
+        # The current step's tokens encoded on their own (the encoder works point by point): the backward pass
+        # then adds no full-size zero-filled gradients for a slice of all steps' tokens.
+        earlier = self.point_encoder(point_cloud[:, :-1])  # (B, To - 1, N, Dp)
+        h_cur = self.point_encoder(point_cloud[:, -1])  # (B, N, Dp)
+        state_feats = self.state_encoder(state)  # (B, To, Ds)
+        h_fut = self.world_query_former(h_cur, state_feats[:, -1])
+        aux = {"h_cur": h_cur, "h_fut": h_fut}
+        if cfg.use_fusion:
+            h_cur = h_cur + torch.tanh(self.fusion_gate) * self.fusion_proj(h_fut)  # H_cond
+        return torch.cat([earlier, h_cur[:, None]], dim=1), state_feats, aux
 
 
 def _teacher_tokens(x: Tensor, batch_size: int, num_points: int, key: str) -> Tensor:

@@ -23,6 +23,7 @@ from torch import Tensor, nn
 
 from lerobot_bavo.features import TEACHER_OCCLUDER, TEACHER_VISIBLE, TEACHER_Z0, TEACHER_ZF, unflatten_points
 from lerobot_bavo.policies.augment import occluder_dropout
+from lerobot_bavo.policies.heap import keep_freed_heap
 
 from .configuration_maniflow import ManiFlowConfig
 
@@ -116,6 +117,36 @@ class SelfAttention(nn.Module):
         return self.out(_merge_heads(y))
 
 
+class MemoryAttention(torch.autograd.Function):
+    """softmax(q_memory memory^T + q_bias) memory, (B, M, Dm) from q_bias (B, M, 1), q_memory (B, M, Dm) and
+    memory (B, L, Dm): the core of `CrossAttention.attend_memory` without attention dropout, with its
+    gradients written out.
+
+    Why: the memory enters twice (scores and values), and autograd's gradient of the scores' use comes out
+    transposed, (B, Dm, L) laid out as (B, L, Dm), so adding the two costs a strided pass over (B, L, Dm);
+    here the second product is accumulated into the first by the matrix multiply itself (`baddbmm_`). The
+    forward pass is the same operations; the gradients are autograd's up to rounding (the softmax's is
+    written out).
+    """
+
+    @staticmethod
+    def forward(ctx, q_bias: Tensor, q_memory: Tensor, memory: Tensor) -> Tensor:
+        attn = torch.baddbmm(q_bias, q_memory, memory.transpose(1, 2)).softmax(dim=-1)  # (B, M, L)
+        ctx.save_for_backward(q_memory, memory, attn)
+        return torch.bmm(attn, memory)
+
+    @staticmethod
+    def backward(ctx, grad_out: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        q_memory, memory, attn = ctx.saved_tensors
+        grad_attn = torch.bmm(grad_out, memory.transpose(1, 2))
+        # softmax: attn * (g - sum_l g_l attn_l)
+        weighted = attn * grad_attn
+        grad_scores = torch.addcmul(weighted, attn, weighted.sum(dim=-1, keepdim=True), value=-1.0)
+        grad_memory = torch.bmm(attn.transpose(1, 2), grad_out)  # (B, L, Dm): values' use, then scores'
+        grad_memory.baddbmm_(grad_scores.transpose(1, 2), q_memory)
+        return grad_scores.sum(dim=-1, keepdim=True), torch.bmm(grad_scores, memory), grad_memory
+
+
 class CrossAttention(nn.Module):
     """Queries from x, keys/values from a memory. `kv(memory)` can be computed once and reused (the
     observation context is the same for every flow step)."""
@@ -155,18 +186,30 @@ class CrossAttention(nn.Module):
         # (heads, D/heads, Dm) each
         w_k, w_v = self.kv_proj.weight.view(2, heads, -1, memory.shape[-1]).unbind(0)
         b_k, b_v = self.kv_proj.bias.view(2, heads, -1).unbind(0)  # (heads, D/heads) each
-        q = self.q(x).view(b, h_len, heads, -1) * w_k.shape[1] ** -0.5  # SDPA's 1/sqrt(head width)
-        q_memory = torch.einsum("bihe,hem->bhim", q, w_k).reshape(b, heads * h_len, -1)  # (B, heads * H, Dm)
-        q_bias = torch.einsum("bihe,he->bhi", q, b_k).reshape(b, heads * h_len, 1)
-        attn = torch.baddbmm(q_bias, q_memory, memory.transpose(1, 2)).softmax(dim=-1)  # (B, heads * H, L)
+        q = self.q(x).view(b * h_len, heads, -1) * w_k.shape[1] ** -0.5  # SDPA's 1/sqrt(head width)
+        # Per head, the (B H) queries times W_k: one batched product over the heads (fewer operations than
+        # the equivalent einsum), then rows ordered (head, query) per sample.
+        q_memory = torch.bmm(q.transpose(0, 1), w_k).view(heads, b, h_len, -1)
+        q_memory = q_memory.transpose(0, 1).reshape(b, heads * h_len, -1)  # (B, heads * H, Dm)
+        q_bias = (q * b_k).sum(dim=-1).view(b, h_len, heads).transpose(1, 2).reshape(b, heads * h_len, 1)
         dropout = self.training and self.dropout > 0
+        # MemoryAttention computes in its inputs' dtype: not under autocast
+        if not dropout and not torch.is_autocast_enabled(memory.device.type):
+            attended = MemoryAttention.apply(q_bias, q_memory, memory)  # (B, heads * H, Dm)
+        else:
+            # (B, heads * H, L)
+            attn = torch.baddbmm(q_bias, q_memory, memory.transpose(1, 2)).softmax(dim=-1)
+            if dropout:
+                attn = F.dropout(attn, self.dropout)
+            attended = torch.bmm(attn, memory)
+        # back per head: (heads, B H, Dm) times W_v^T, then (B, H, heads, D/heads)
+        attended = attended.view(b, heads, h_len, -1).transpose(0, 1).reshape(heads, b * h_len, -1)
         if dropout:
-            attn = F.dropout(attn, self.dropout)
-        y = torch.einsum("bhim,hem->bihe", torch.bmm(attn, memory).view(b, heads, h_len, -1), w_v)
-        if dropout:
+            y = torch.bmm(attended, w_v.transpose(1, 2)).view(heads, b, h_len, -1).permute(1, 2, 0, 3)
             y = y + attn.sum(dim=-1).view(b, heads, h_len).transpose(1, 2)[..., None] * b_v
         else:
-            y = y + b_v
+            y = torch.baddbmm(b_v[:, None], attended, w_v.transpose(1, 2)).view(heads, b, h_len, -1)
+            y = y.permute(1, 2, 0, 3)
         return self.out(y.reshape(b, h_len, -1))
 
 
@@ -260,7 +303,8 @@ class DiTX(nn.Module):
         per_step = F.linear(states, w_states, self.context_in.bias)[:, :, None]  # (B, To, 1, D)
         # In the projections' dtype (bf16 under autocast), which every block's attention reads it in.
         per_position = self.context_pos.view(1, to, n, -1).to(per_step.dtype)
-        return (F.linear(points, w_points) + (per_step + per_position)).view(b, to * n, -1)
+        # added in place: no (B, To, N, D) temporary for their sum
+        return F.linear(points, w_points).add_(per_step).add_(per_position).view(b, to * n, -1)
 
     def modulations(self, t: Tensor, dt: Tensor) -> list[tuple[Tensor, ...]]:
         """AdaLN-Zero (shift, 1 + scale, gate) x 3 of every block, (B, 1, D) each, from c = proj([emb(t),
@@ -538,6 +582,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         super().train(mode)
         self.ema_model.eval()  # the EMA copy never uses dropout
         self.invalidate_modulation_cache()
+        if mode:  # training steps reuse the memory the previous one freed (once per process)
+            keep_freed_heap()
         return self
 
     def invalidate_modulation_cache(self) -> None:
@@ -557,9 +603,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         if self._ema_step_host is None:
             self._ema_step_host = int(self.ema_step.item())
         decay = self.ema_decay(self._ema_step_host)
-        ema_params = list(self.ema_model.parameters())
-        params = [p.detach() for p in self.model.parameters()]
-        torch._foreach_lerp_(ema_params, params, 1.0 - decay)
+        # (no_grad: the online parameters need no detached copies)
+        torch._foreach_lerp_(list(self.ema_model.parameters()), list(self.model.parameters()), 1.0 - decay)
         ema_buffers, buffers = list(self.ema_model.buffers()), list(self.model.buffers())
         if buffers:
             torch._foreach_copy_(ema_buffers, buffers)
