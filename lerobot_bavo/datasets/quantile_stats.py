@@ -33,21 +33,25 @@ class RunningQuantileStats:
         self._quantile_list = DEFAULT_QUANTILES if quantile_list is None else quantile_list
         self._quantile_keys = [f"q{int(q * 100):02d}" for q in self._quantile_list]
 
+    def start(self, mean: np.ndarray, mean_of_squares: np.ndarray, minimum: np.ndarray,
+              maximum: np.ndarray) -> None:
+        """The state after the first batch (LeRobot's first-update branch): its per-dimension mean, mean of
+        squares and range, and empty histograms whose bins span that range."""
+        self._mean, self._mean_of_squares, self._min, self._max = mean, mean_of_squares, minimum, maximum
+        self._histograms = [np.zeros(self._num_quantile_bins) for _ in range(mean.size)]
+        self._bin_edges = [
+            np.linspace(self._min[i] - 1e-10, self._max[i] + 1e-10, self._num_quantile_bins + 1)
+            for i in range(mean.size)
+        ]
+
     def update(self, batch: np.ndarray) -> None:
         """Update the statistics with a batch of vectors (every axis but the last is a batch axis)."""
         batch = batch.reshape(-1, batch.shape[-1])
         batch = batch.astype(np.result_type(batch.dtype, np.float32), copy=False)
         num_elements, vector_length = batch.shape
         if self._count == 0:
-            self._mean = np.mean(batch, axis=0)
-            self._mean_of_squares = np.mean(batch**2, axis=0)
-            self._min = np.min(batch, axis=0)
-            self._max = np.max(batch, axis=0)
-            self._histograms = [np.zeros(self._num_quantile_bins) for _ in range(vector_length)]
-            self._bin_edges = [
-                np.linspace(self._min[i] - 1e-10, self._max[i] + 1e-10, self._num_quantile_bins + 1)
-                for i in range(vector_length)
-            ]
+            self.start(np.mean(batch, axis=0), np.mean(batch**2, axis=0), np.min(batch, axis=0),
+                       np.max(batch, axis=0))
         else:
             if vector_length != self._mean.size:
                 raise ValueError("The length of new vectors does not match the initialized vector length.")

@@ -88,15 +88,8 @@ class DeferredFrameStats(RunningQuantileStats):
         run_start = 0  # first frame not yet added to the histograms
         for f in range(n_frames):
             if self._count == 0:
-                self._mean = red.frame_mean[f].copy()
-                self._mean_of_squares = red.frame_mean_sq[f].copy()
-                self._min = red.frame_min[f].copy()
-                self._max = red.frame_max[f].copy()
-                self._histograms = [np.zeros(self._num_quantile_bins) for _ in range(channels)]
-                self._bin_edges = [
-                    np.linspace(self._min[i] - 1e-10, self._max[i] + 1e-10, self._num_quantile_bins + 1)
-                    for i in range(channels)
-                ]
+                self.start(red.frame_mean[f].copy(), red.frame_mean_sq[f].copy(), red.frame_min[f].copy(),
+                           red.frame_max[f].copy())
             else:
                 if channels != self._mean.size:
                     raise ValueError(
