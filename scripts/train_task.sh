@@ -14,7 +14,8 @@
 #   bash scripts/train_task.sh recipe METHOD  # collect + views + the shipped recipe for METHOD (afar|maniflow),
 #                                             # stopped after step STOP_AT (4000), shipped to
 #                                             # checkpoints/<method>_<task> and evaluated on the 40 test seeds in
-#                                             # outputs/eval/grid_table/runs/<method>/s<SEED>/<task>; resumable
+#                                             # outputs/eval/grid_table/runs/<method>/s<SEED>/<task> (its episode
+#                                             # log copied to docs/results/grid_table); resumable
 #
 # The shipped A-FARs (checkpoints/afar_<task>: step 4000 of a 5000-step cosine schedule, fixed in advance):
 #   TASK=block_stacking bash scripts/train_task.sh recipe afar
@@ -136,7 +137,8 @@ case "${1:-}" in
         .venv/bin/python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
         test_eval "$ship" "$evaldir" --videos 0
         .venv/bin/python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
-            --output "$ship" ;;
+            --output "$ship"
+        .venv/bin/python scripts/grid_runs.py save ;;  # the episode logs to commit (docs/results/grid_table)
     *)
         sed -n 2,33p "$0"; exit 2 ;;
 esac
