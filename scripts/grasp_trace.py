@@ -1,0 +1,94 @@
+"""Where the gripper is when it first closes, for a policy and for the scripted expert (issue 27).
+
+Why: the learned policies stop at the first object they must carry on Block Stacking and Drawer Stowing.
+On Cube Handoff the same symptom was the gripper closing above the cube (docs/results/ladder_cube_handoff.md,
+fourth attempt). This rolls out episodes and logs, for the arm that makes the task's first grasp, the first
+step its gripper command falls below `--closed` (commands are in [0, 1], 1 = open) and where the gripper
+centre (`<side>_gripper_center` site) then is relative to the object's centre, in the world frame (mm; z up),
+with the deepest milestone reached, the closest the gripper came to the object and the lowest command it
+sent. The expert's numbers are the reference for a grasp that works.
+
+    python scripts/grasp_trace.py --task block_stacking --policy checkpoints/afar_block_stacking \
+        [--condition clean] [--seeds 1000-1003]
+
+Seeds default to the validation seeds (1000+); test seeds (2000+) are for reporting only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from lerobot_bavo.envs.bavo_env import BavoEnv
+from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
+from lerobot_bavo.sim import constants as C
+
+# The first grasp of each task: (arm, object body).
+FIRST_GRASP = {
+    "cube_handoff": ("right", "cube"),
+    "block_stacking": ("right", "base_block"),
+    "drawer_stowing": ("left", "block"),
+    "dustpan_sweeping": ("right", "target_object"),
+    "slide_retrieval": ("right", "spatula"),
+}
+
+
+def trace_episode(env, agent, seed: int, side: str, body: str, closed: float) -> dict:
+    """One episode; the first step the `side` gripper command falls below `closed` and the gripper centre
+    minus the object's centre then (world frame, mm); the closest the gripper centre came to the object's centre
+(mm, and when), and the lowest command sent."""
+    dim = C.ACTION_NAMES.index(f"{side}_gripper")
+    seen = {"close_step": None, "offset_mm": None, "closest_mm": float("inf"), "closest_step": None,
+            "min_command": 1.0}
+    act = agent.act
+
+    def logging_act(obs, info):
+        action = act(obs, info)
+        offset = env.data.site(f"{side}_gripper_center").xpos - env.data.body(body).xpos
+        distance = 1000 * float(np.linalg.norm(offset))
+        if distance < seen["closest_mm"]:
+            seen["closest_mm"], seen["closest_step"] = round(distance, 1), int(info["elapsed_steps"])
+        seen["min_command"] = round(min(seen["min_command"], float(action[dim])), 3)
+        if seen["close_step"] is None and float(action[dim]) < closed:
+            seen["close_step"] = int(info["elapsed_steps"])
+            seen["offset_mm"] = [round(1000 * float(v), 1) for v in offset]
+        return action
+
+    agent.act = logging_act
+    try:
+        record = run_episode(env, agent, seed)
+    finally:
+        agent.act = act
+    return {"seed": seed, "progress": record["progress"], "success": record["success"], **seen}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--task", required=True, choices=sorted(FIRST_GRASP))
+    ap.add_argument("--policy", default="expert", help="a checkpoint folder or expert (default)")
+    ap.add_argument("--condition", default="clean")
+    ap.add_argument("--seeds", default="1000-1003", help="first-last (inclusive)")
+    ap.add_argument("--closed", type=float, default=0.5, help="a gripper command below this is 'closing'")
+    args = ap.parse_args()
+    first, last = (int(s) for s in args.seeds.split("-"))
+    side, body = FIRST_GRASP[args.task]
+    env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
+    agent = make_agent(args.policy, env)
+    rows = [trace_episode(env, agent, seed, side, body, args.closed) for seed in range(first, last + 1)]
+    env.close()
+    for row in rows:
+        print(json.dumps(row))
+    offsets = np.array([r["offset_mm"] for r in rows if r["offset_mm"] is not None])
+    if len(offsets):
+        print(f"{args.policy} on {args.task} ({args.condition}), {side} gripper on {body}: closes at steps "
+              f"{[r['close_step'] for r in rows]}; offset mean (x, y, z) {offsets.mean(0).round(1).tolist()} "
+              f"mm, |offset| {np.linalg.norm(offsets, axis=1).round(0).tolist()} mm; milestones "
+              f"{[r['progress'] for r in rows]}")
+    print(f"closest approach {[r['closest_mm'] for r in rows]} mm at steps {[r['closest_step'] for r in rows]}; "
+          f"lowest command {[r['min_command'] for r in rows]}")
+
+
+if __name__ == "__main__":
+    main()
