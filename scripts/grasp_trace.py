@@ -37,8 +37,8 @@ FIRST_GRASP = {
 
 def trace_episode(env, agent, seed: int, side: str, body: str, closed: float) -> dict:
     """One episode; the first step the `side` gripper command falls below `closed` and the gripper centre
-    minus the object's centre then (world frame, mm); the closest the gripper centre came to the object's centre
-(mm, and when), and the lowest command sent."""
+    minus the object's centre then (world frame, mm); the closest the gripper centre came to the object's
+    centre (mm, and when), and the lowest command sent."""
     dim = C.ACTION_NAMES.index(f"{side}_gripper")
     seen = {"close_step": None, "offset_mm": None, "closest_mm": float("inf"), "closest_step": None,
             "min_command": 1.0}
@@ -86,8 +86,8 @@ def main() -> None:
               f"{[r['close_step'] for r in rows]}; offset mean (x, y, z) {offsets.mean(0).round(1).tolist()} "
               f"mm, |offset| {np.linalg.norm(offsets, axis=1).round(0).tolist()} mm; milestones "
               f"{[r['progress'] for r in rows]}")
-    print(f"closest approach {[r['closest_mm'] for r in rows]} mm at steps {[r['closest_step'] for r in rows]}; "
-          f"lowest command {[r['min_command'] for r in rows]}")
+    print(f"closest approach {[r['closest_mm'] for r in rows]} mm at steps "
+          f"{[r['closest_step'] for r in rows]}; lowest command {[r['min_command'] for r in rows]}")
 
 
 if __name__ == "__main__":

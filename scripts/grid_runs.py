@@ -1,21 +1,20 @@
 """Keep a results grid's evaluation runs in the repository, so that a later session on a fresh machine (where
 `outputs/` is gone) re-runs only the cells that were never evaluated.
 
-    python scripts/grid_runs.py save    [--output-dir outputs/eval/grid_table] [--archive docs/results/grid_table]
-    python scripts/grid_runs.py restore [--output-dir outputs/eval/grid_table] [--archive docs/results/grid_table]
+    python scripts/grid_runs.py save      # [--output-dir outputs/eval/grid_table] [--archive DIR]
+    python scripts/grid_runs.py restore   # the same options; DIR defaults to docs/results/grid_table
     bavo-eval --grid configs/grid_table.yaml --output-dir outputs/eval/grid_table --workers 2   # the rest
 
 `save` copies every run under `<output-dir>/runs/` that has episodes (`runs/<method>/<label>[/<task>]/`, the
 layout `bavo-eval --grid` and `scripts/train_task.sh recipe` write) to the same path under the archive: its
 `run.json` (seed, checkpoint digest, point frame), its `results.md`, and its per-episode log `episodes.jsonl`
-gzipped (~110 KB per 120 policy episodes; a fixed
-gzip header, so an unchanged log gives the same bytes). The log is the measurement itself: every SR, TPS, CVG
-and Joint of the run is computed from it.
+gzipped (~110 KB per 120 policy episodes; a fixed gzip header, so an unchanged log gives the same bytes).
+The log is the measurement itself: every SR, TPS, CVG and Joint of the run is computed from it.
 
-`restore` writes every archived run back into `<output-dir>/runs/...` where that run has no episode log yet. `bavo-eval`
-resumes a run only when its `run.json` names the same seed, checkpoint digest (sha256 of the weights and
-config) and point frame, so restored episodes count only for the very checkpoint they were measured with: a
-changed checkpoint is refused with a message, never mixed in.
+`restore` writes every archived run back into `<output-dir>/runs/...` where that run has no episode log yet.
+`bavo-eval` resumes a run only when its `run.json` names the same seed, checkpoint digest (sha256 of the
+weights and config) and point frame, so restored episodes count only for the very checkpoint they were
+measured with: a changed checkpoint is refused with a message, never mixed in.
 """
 
 from __future__ import annotations
@@ -79,10 +78,12 @@ def restore(output_dir: Path, archive: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("action", choices=("save", "restore"))
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/eval/grid_table"))
-    parser.add_argument("--archive", type=Path, default=ARCHIVE, help="the committed runs (default %(default)s)")
+    parser.add_argument("--archive", type=Path, default=ARCHIVE,
+                        help="the committed runs (default %(default)s)")
     args = parser.parse_args(argv)
     if args.action == "save":
         n = save(args.output_dir, args.archive)
