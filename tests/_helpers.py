@@ -2,6 +2,21 @@
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def load_script(relative_path: str):
+    """Import a repository script that is not part of the package (e.g. `scripts/results_table.py`) as a
+    module, by path, so its functions can be tested."""
+    path = REPO / relative_path
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
 
 def milestone_flags(**true: bool) -> dict[str, bool]:
     """The expected `evaluate()` dict: m1..m5 all False except those given as True."""

@@ -3,21 +3,16 @@ already has episodes is never overwritten, and the archive's gzip is reproducibl
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parent.parent
+from _helpers import load_script
 
 
 @pytest.fixture(scope="module")
 def grid_runs():
-    spec = importlib.util.spec_from_file_location("grid_runs", REPO / "scripts" / "grid_runs.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("scripts/grid_runs.py")
 
 
 def write_run(folder: Path, seeds: range) -> bytes:

@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from _helpers import load_script
 from lerobot.configs import FeatureType
 from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env, make_env_config
@@ -165,12 +166,7 @@ def test_create_envs_step_and_preprocess():
 
 # ----------------------------------------------------------------------------- lerobot-eval
 def _load_make_random_policy():
-    spec = importlib.util.spec_from_file_location(
-        "make_random_policy", REPO / "scripts" / "make_random_policy.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("scripts/make_random_policy.py")
 
 
 def test_make_random_policy_help():

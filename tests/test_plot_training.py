@@ -1,18 +1,11 @@
 """scripts/plot_training.py: exact steps recovered from lerobot-train's rounded step counter."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
+from _helpers import load_script
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("plot_training", REPO / "scripts" / "plot_training.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("scripts/plot_training.py")
 
 
 def _log(tmp_path, steps):

@@ -4,17 +4,15 @@ to eval/, teacher/ to datasets/, ...), and no private name used across modules (
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
+
+from _helpers import load_script
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def _import_graph():
-    spec = importlib.util.spec_from_file_location("import_graph", REPO / "scripts" / "import_graph.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("scripts/import_graph.py")
 
 
 def test_no_import_loops_no_upward_arrows_no_private_use_across_modules():

@@ -363,12 +363,9 @@ def test_compile_gives_the_eager_step(kind):
 
 def test_benchmark_gpu_busy_fraction_is_the_union_of_kernel_intervals():
     """benchmarks/train_throughput.py's GPU busy figure (its CUDA path cannot run here; this part can)."""
-    import importlib.util
+    from _helpers import load_script
 
-    path = Path(__file__).resolve().parent.parent / "benchmarks" / "train_throughput.py"
-    spec = importlib.util.spec_from_file_location("train_throughput", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_script("benchmarks/train_throughput.py")
     assert bench.busy_fraction([(0, 2), (1, 3), (5, 6), (5.5, 5.8)], wall=10) == pytest.approx(0.4)
     assert bench.busy_fraction([], wall=10) == 0.0
     assert bench.policy_overrides(["compile=true", "batch=3", "lr=1e-4", "mode=reduce-overhead"]) == {
