@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -132,11 +133,19 @@ def test_a_learned_policy_episode_depends_only_on_its_seed():
 SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoints").iterdir() if p.is_dir())
 
 
+def method_and_task(folder: Path) -> tuple[str, str]:
+    """`checkpoints/<method>_<task>` (training seed 1000) or `<method>_<task>_s<seed>` (another training seed,
+    as `scripts/train_task.sh recipe` names it)."""
+    match = re.fullmatch(r"([a-z]+)_([a-z_]+?)(?:_s\d+)?", folder.name)
+    assert match, folder.name
+    return match.group(1), match.group(2)
+
+
 def test_every_task_has_its_checkpoint_folder_named_method_task():
     from lerobot_bavo.envs.tasks import TASKS
 
     for folder in SHIPPED:
-        method, _, task = folder.name.partition("_")
+        method, task = method_and_task(folder)
         assert method in ("afar", "maniflow") and task in TASKS, folder.name
 
 
@@ -147,7 +156,7 @@ def test_each_shipped_checkpoint_is_small_documented_and_acts_in_its_task(folder
     from lerobot_bavo.envs.bavo_env import BavoEnv
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent
 
-    method, _, task = folder.name.partition("_")
+    method, task = method_and_task(folder)
     assert sum(p.stat().st_size for p in folder.iterdir()) <= 7_000_000
     cfg = json.loads((folder / "config.json").read_text())
     assert cfg["type"] == method
