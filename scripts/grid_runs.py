@@ -51,10 +51,10 @@ def save(output_dir: Path, archive: Path) -> int:
         for name in FILES:
             if (folder / name).is_file():
                 shutil.copyfile(folder / name, dest / name)
-        packed = gzip_bytes(log.read_bytes())
-        target = dest / PACKED
-        if not target.is_file() or target.read_bytes() != packed:
-            target.write_bytes(packed)
+        # complete records only: a run still being written may end in a line cut short, which bavo-eval
+        # would otherwise append its next record to after a restore
+        data = log.read_bytes()
+        (dest / PACKED).write_bytes(gzip_bytes(data[: data.rfind(b"\n") + 1]))
         print(f"saved {n:4d} episodes: {folder} -> {dest}")
         saved += 1
     return saved

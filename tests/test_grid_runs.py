@@ -29,6 +29,8 @@ def test_save_then_restore_round_trips_and_keeps_existing_logs(grid_runs, tmp_pa
     out, archive = tmp_path / "out", tmp_path / "archive"
     log = write_run(out / "runs" / "expert" / "0", range(2000, 2003))
     (out / "runs" / "frozen" / "0").mkdir(parents=True)  # a run with no episodes yet: nothing to save
+    with open(out / "runs" / "expert" / "0" / "episodes.jsonl", "ab") as f:
+        f.write(b'{"seed": 2003, "succ')  # a record being written when the run is saved: left out
     assert grid_runs.save(out, archive) == 1
     packed = (archive / "runs" / "expert" / "0" / "episodes.jsonl.gz").read_bytes()
     assert grid_runs.save(out, archive) == 1
