@@ -607,3 +607,45 @@ def test_ctrl_c_with_a_writer_session_open_rolls_it_back(tmp_path, monkeypatch):
     assert [e["seed"] for e in read_sidecar(root)["episodes"]] == [0, 1, 2, 3]
     check_files(root)
 
+
+
+def test_mix_views_joins_the_first_episodes_of_each_view(dataset_root, tmp_path):
+    """scripts/mix_views.py (issue 27's condition-mix variant): Stage episode 0 + both Random-time episodes
+    -> one view of 3 episodes whose frames are the sources' own, with a collection record naming the mix."""
+    from _helpers import load_script
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_bavo.datasets.metadata import SIDECAR
+    from lerobot_bavo.datasets.views import make_view
+
+    mix = load_script("scripts/mix_views.py")
+    random_root = tmp_path / "bavo_random"
+    assert collect(_config(random_root, episodes=2, condition="random", seed=7))["episodes"] == 2
+    stage_view = tmp_path / "stage_points"
+    random_view = tmp_path / "bavo_random_points"
+    make_view(dataset_root, "points", output_root=stage_view)
+    make_view(random_root, "points", output_root=random_view)
+    (tmp_path / "stage" / "meta").mkdir(parents=True)
+    shutil.copy(dataset_root / SIDECAR, tmp_path / "stage" / SIDECAR)  # the view's source record
+
+    out = tmp_path / "mixed_points"
+    mix.main(["--output", str(out), "--source", f"{stage_view}:1", "--source", f"{random_view}:2"])
+    joined = LeRobotDataset("local/mixed_points", root=out)
+    stage = LeRobotDataset("x/stage", root=stage_view)
+    rand = LeRobotDataset("x/random", root=random_view)
+    assert joined.meta.total_episodes == 3 and len(joined) == 3 * STEPS
+    for j, (src, i) in ((0, (stage, 0)), (STEPS + 4, (rand, 4)), (2 * STEPS + 9, (rand, STEPS + 9))):
+        a, b = joined[j], src[i]
+        for key in (S.OBS_POINT_CLOUD, S.ACTION, S.OBS_STATE, S.TEACHER_OCCLUDER):
+            torch.testing.assert_close(a[key], b[key])
+    assert [int(joined[k]["episode_index"]) for k in (0, STEPS, 2 * STEPS)] == [0, 1, 2]
+    record = json.loads((tmp_path / "mixed" / SIDECAR).read_text())
+    assert record["settings"]["condition"] == "stage+random"
+    assert [(e["episode_index"], e["seed"]) for e in record["episodes"]] == [(0, 0), (1, 7), (2, 8)]
+    assert [m["episodes"] for m in record["mixed_from"]] == [1, 2]
+    with pytest.raises(SystemExit, match="exists"):
+        mix.main(["--output", str(out), "--source", f"{stage_view}:1"])
+    import argparse
+
+    with pytest.raises(argparse.ArgumentTypeError, match="ROOT:EPISODES"):
+        mix.parse_source("no_count")
