@@ -217,3 +217,49 @@ def test_a_checkpoint_path_holds_no_other_field(tmp_path):
     spec = {"methods": {"afar": {"checkpoints": {"s1": str(tmp_path / "ck_{seed}")}}}}
     with pytest.raises(GridError, match=r"the only field a checkpoint path may hold is \{task\}"):
         parse_grid(spec)
+
+
+def test_a_training_seed_on_fewer_tasks(tmp_path, monkeypatch):
+    """`{path, tasks}` for a training seed (extra seeds on Cube Handoff only): that seed is run and averaged
+    only on its tasks; a cell's mean ± std is over the seeds that have it, the macro mean over the seeds that
+    have every task (hand-computed below)."""
+    for name in ("ck_cube_handoff", "ck_block_stacking", "ck_cube_handoff_s2"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "config.json").write_text("{}")
+    spec = {"tasks": ["cube_handoff", "block_stacking"], "conditions": ["stage"], "episodes": 2, "seed": 2000,
+            "methods": {"afar": {"checkpoints": {
+                "s1": str(tmp_path / "ck_{task}"),
+                "s2": {"path": str(tmp_path / "ck_{task}_s2"), "tasks": ["cube_handoff"]}}}}}
+    grid = parse_grid(spec)
+    (method,) = grid.methods
+    assert [(label, Path(policy).name, tasks) for label, policy, tasks, _ in method.runs(tmp_path)] == [
+        ("s1", "ck_cube_handoff", ("cube_handoff",)), ("s1", "ck_block_stacking", ("block_stacking",)),
+        ("s2", "ck_cube_handoff_s2", ("cube_handoff",))]
+    sr = {"ck_cube_handoff": 50.0, "ck_block_stacking": 10.0, "ck_cube_handoff_s2": 20.0}
+
+    def fake_evaluate(policy, tasks, conditions, episodes, seed, output_dir, **kwargs):
+        (task,) = tasks
+        return {"cells": {f"{task}/stage": {"sr": sr[Path(policy).name], "tps": 80.0, "cvg": None,
+                                             "joint": None, "n_episodes": episodes}}}
+
+    monkeypatch.setattr(run, "evaluate", fake_evaluate)
+    results = run_grid(grid, tmp_path)
+    afar = results["methods"]["afar"]
+    cube = afar["cells"]["cube_handoff/stage"]
+    assert cube["n_seeds"] == 2 and cube["mean"]["sr"] == 35.0  # (50 + 20) / 2
+    assert cube["std"]["sr"] == pytest.approx(21.2132034)  # |50 - 20| / sqrt(2)
+    assert afar["cells"]["block_stacking/stage"]["n_seeds"] == 1
+    assert afar["mean_over_tasks"]["stage"]["n_seeds"] == 1  # only s1 has both tasks
+    assert afar["mean_over_tasks"]["stage"]["mean"]["sr"] == 30.0  # (50 + 10) / 2
+    assert afar["checkpoints"]["s2"] == {"path": str(tmp_path / "ck_{task}_s2"), "tasks": ["cube_handoff"]}
+    assert json.loads((tmp_path / "grid.json").read_text())["methods"]["afar"]["checkpoints"]["s2"]["tasks"] \
+        == ["cube_handoff"]
+    table = (tmp_path / "results.md").read_text().splitlines()
+    rows = [line for line in table if line.startswith("| afar |")]
+    assert [r.split("|")[2:4] for r in rows] == [[" 2 ", " cube_handoff "], [" 1 ", " block_stacking "],
+                                                 [" 1 ", " **mean of 2** "]]
+    for bad, message in (({"path": "expert"}, "exactly the keys path and tasks"),
+                         ({"path": "expert", "tasks": ["drawer_stowing"]}, "unknown task 'drawer_stowing'")):
+        spec["methods"]["afar"]["checkpoints"]["s2"] = bad
+        with pytest.raises(GridError, match=message):
+            parse_grid(spec)

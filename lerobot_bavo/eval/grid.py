@@ -14,7 +14,9 @@ A grid file (YAML) names the cells; `configs/grid_expert.yaml` is an example:
         tasks: [cube_handoff]               # optional: this method on fewer tasks / conditions
       maniflow: [ckpt_seed0, ckpt_seed1]    # a list is a training-seed axis labelled 0, 1, ...
       afar-per-task:                        # single-task policies: `{task}` in a path is the task's name
-        checkpoints: {s1000: checkpoints/afar_{task}}
+        checkpoints:
+          s1000: checkpoints/afar_{task}
+          s1001: {path: checkpoints/afar_{task}_s1001, tasks: [cube_handoff]}  # a seed on fewer tasks
 
 The file is UTF-8 YAML of at most `MAX_GRID_BYTES`, without anchors or aliases (`&name`, `*name`; see
 `load_grid`). Relative checkpoint paths are resolved against the current directory. Every (method, training
@@ -22,7 +24,10 @@ seed) is one ordinary `bavo-eval` run in `<output-dir>/runs/<method>/<label>/` (
 episodes.jsonl, results.json; with a `{task}` checkpoint, one run per task in `.../<label>/<task>/`, which is
 also where `bavo-eval --policy checkpoints/afar_<task> --tasks <task>` can be run beforehand), so a killed
 grid re-run with the same command keeps every finished episode and with them every finished cell, and runs
-only what is missing. The grid then writes, in `<output-dir>`:
+only what is missing. A training seed given as `{path: ..., tasks: [...]}` covers only those of its method's
+tasks (extra seeds where the budget allowed them, as the paper asks "Cube Handoff first"): a cell's mean ± std
+is over the seeds that have it, and the method's mean over tasks over the seeds that have every task. The grid
+then writes, in `<output-dir>`:
 
   results.json  every cell: each training seed's SR / TPS / CVG / Joint and n_episodes, their mean and std
   over
@@ -69,6 +74,16 @@ class Method:
     checkpoints: dict[str, str]
     tasks: tuple[str, ...]
     conditions: tuple[str, ...]
+    # training-seed label -> the tasks that seed has, where fewer than `tasks` (`{path, tasks}` in the file)
+    seed_tasks: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def tasks_of(self, label: str) -> tuple[str, ...]:
+        """The tasks training seed `label` is evaluated on (in the method's order)."""
+        return self.seed_tasks.get(label, self.tasks)
+
+    def labels_of(self, task: str) -> list[str]:
+        """The training seeds that have `task`."""
+        return [label for label in self.checkpoints if task in self.tasks_of(label)]
 
     @property
     def per_task(self) -> bool:
@@ -78,11 +93,17 @@ class Method:
     def runs(self, output_dir: Path) -> list[tuple[str, str, tuple[str, ...], Path]]:
         """(label, policy, tasks, run folder) of every bavo-eval run this method takes."""
         if not self.per_task:
-            return [(label, policy, self.tasks, run_dir(output_dir, self.name, label))
+            return [(label, policy, self.tasks_of(label), run_dir(output_dir, self.name, label))
                     for label, policy in self.checkpoints.items()]
         return [(label, policy.replace(TASK_FIELD, task), (task,),
                  run_dir(output_dir, self.name, label) / task)
-                for label, policy in self.checkpoints.items() for task in self.tasks]
+                for label, policy in self.checkpoints.items() for task in self.tasks_of(label)]
+
+    def as_dict(self) -> dict:
+        checkpoints = {label: ({"path": policy, "tasks": list(self.seed_tasks[label])}
+                               if label in self.seed_tasks else policy)
+                       for label, policy in self.checkpoints.items()}
+        return {"checkpoints": checkpoints, "tasks": list(self.tasks), "conditions": list(self.conditions)}
 
 
 @dataclass(frozen=True)
@@ -96,8 +117,7 @@ class Grid:
     def as_dict(self) -> dict:
         return {"tasks": list(self.tasks), "conditions": list(self.conditions), "episodes": self.episodes,
                 "seed": self.seed,
-                "methods": {m.name: {"checkpoints": dict(m.checkpoints), "tasks": list(m.tasks),
-                                     "conditions": list(m.conditions)} for m in self.methods}}
+                "methods": {m.name: m.as_dict() for m in self.methods}}
 
 
 # ------------------------------------------------------------------ the grid file
@@ -114,9 +134,10 @@ def _names(value, what: str, known, where: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _checkpoints(value, where: str) -> dict[str, str]:
+def _checkpoints(value, where: str) -> tuple[dict[str, str], dict[str, object]]:
     """A method's training-seed axis: one policy (label "0"), a list (labels "0", "1", ...) or label ->
-    policy."""
+    policy, where a policy may be `{path: ..., tasks: [...]}` (that seed on those tasks only). Returns
+    (label -> policy, label -> its raw task list, checked by the caller against the method's tasks)."""
     if isinstance(value, str):
         value = [value]
     if isinstance(value, list):
@@ -126,7 +147,7 @@ def _checkpoints(value, where: str) -> dict[str, str]:
             f"{where}: give one policy, a list of checkpoints (one per training seed) or a mapping "
             f"label -> checkpoint, got {short_repr(value)}"
         )
-    out = {}
+    out, seed_tasks = {}, {}
     for label, policy in value.items():
         label = str(label)
         if not _NAME.match(label):
@@ -134,13 +155,22 @@ def _checkpoints(value, where: str) -> dict[str, str]:
                 f"{where}: training-seed label {short_repr(label)} must be a plain name (letters, digits, "
                 "_ . + -)"
             )
+        if isinstance(policy, dict):
+            unknown = sorted(set(map(str, policy)) - {"path", "tasks"})
+            if unknown or "path" not in policy or "tasks" not in policy:
+                raise GridError(
+                    f"{where}: training seed {short_repr(label)} as a mapping has exactly the keys path and "
+                    f"tasks, got {short_repr(sorted(map(str, policy)))}"
+                )
+            seed_tasks[label] = policy["tasks"]
+            policy = policy["path"]
         if not isinstance(policy, str) or not policy:
             raise GridError(
                 f"{where}: checkpoint of {short_repr(label)} must be a path or an expert name, got "
                 f"{short_repr(policy)}"
             )
         out[label] = policy
-    return out
+    return out, seed_tasks
 
 
 def check_policy(policy: str, where: str) -> None:
@@ -216,11 +246,16 @@ def parse_grid(data, source: str = "grid") -> Grid:
             )
             m_conds = _names(spec.get("conditions", list(conditions)), "conditions", list(conditions),
                              f"{where}.conditions (of the grid's)")
-            checkpoints = _checkpoints(spec["checkpoints"], f"{where}.checkpoints")
+            checkpoints, raw_seed_tasks = _checkpoints(spec["checkpoints"], f"{where}.checkpoints")
         else:
             m_tasks, m_conds = tasks, conditions
-            checkpoints = _checkpoints(spec, where)
-        method = Method(name, checkpoints, m_tasks, m_conds)
+            checkpoints, raw_seed_tasks = _checkpoints(spec, where)
+        seed_tasks = {}
+        for label, value in raw_seed_tasks.items():
+            chosen = _names(value, "tasks", list(m_tasks),
+                            f"{where}.checkpoints.{label}.tasks (of the method's)")
+            seed_tasks[label] = tuple(t for t in m_tasks if t in chosen)
+        method = Method(name, checkpoints, m_tasks, m_conds, seed_tasks)
         for label, policy in checkpoints.items():
             if set("{}") & set(policy.replace(TASK_FIELD, "")):
                 raise GridError(
@@ -320,19 +355,19 @@ def method_results(method: Method, runs: dict[str, dict]) -> dict:
     for task in method.tasks:
         for cond in method.conditions:
             key = f"{task}/{cond}"
-            per_seed = {label: {k: v for k, v in res["cells"][key].items() if k != "episodes"}
-                        for label, res in runs.items()}
+            per_seed = {label: {k: v for k, v in runs[label]["cells"][key].items() if k != "episodes"}
+                        for label in method.labels_of(task)}
             cells[key] = aggregate_seeds(per_seed)
-    if len(method.tasks) > 1:
+    complete = [label for label in method.checkpoints if method.tasks_of(label) == method.tasks]
+    if len(method.tasks) > 1 and complete:  # the macro mean: over the seeds that have every task
         for cond in method.conditions:
             over_tasks[cond] = aggregate_seeds(
                 {
-                    label: mean_over_tasks([res["cells"][f"{t}/{cond}"] for t in method.tasks])
-                    for label, res in runs.items()
+                    label: mean_over_tasks([runs[label]["cells"][f"{t}/{cond}"] for t in method.tasks])
+                    for label in complete
                 }
             )
-    return {"checkpoints": dict(method.checkpoints), "tasks": list(method.tasks),
-            "conditions": list(method.conditions), "cells": cells, "mean_over_tasks": over_tasks}
+    return {**method.as_dict(), "cells": cells, "mean_over_tasks": over_tasks}
 
 
 # ------------------------------------------------------------------ report
@@ -379,7 +414,8 @@ def grid_markdown(results: dict) -> str:
                 fmt_mean_std(by_cond[c]["mean"][k], by_cond[c]["std"][k]) if by_cond.get(c) else "-"
                 for c, k in cols
             ]
-            lines.append(f"| {name} | {len(m['checkpoints'])} | {label} | " + " | ".join(vals) + " |")
+            n_seeds = max((by_cond[c]["n_seeds"] for c in results["conditions"] if by_cond.get(c)), default=0)
+            lines.append(f"| {name} | {n_seeds} | {label} | " + " | ".join(vals) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -472,9 +508,8 @@ def run_grid(grid: Grid, output_dir: Path, workers: int = 1, videos: int = 0, ex
     try:
         write_results({output_dir / "grid.json": json.dumps(grid.as_dict(), indent=1)})
         pending = pending_episodes(grid, output_dir)
-        total = (
-            sum(len(m.checkpoints) * len(m.tasks) * len(m.conditions) for m in grid.methods) * grid.episodes
-        )
+        total = sum(len(tasks) * len(m.conditions) * grid.episodes
+                    for m in grid.methods for _, _, tasks, _ in m.runs(output_dir))
         n_runs = sum(len(m.runs(output_dir)) for m in grid.methods)
         print(f"bavo-eval --grid: {total} episodes in {n_runs} runs; "
               f"{total - pending} finished, {pending} to run")
