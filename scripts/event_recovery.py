@@ -1,0 +1,83 @@
+"""How well a policy recovers the view at each Random-time occlusion event, by the event's order.
+
+Why (issue 27): A-FAR and ManiFlow, trained on Stage demonstrations, fail most Random-time episodes. A Stage
+episode has its occlusion at the start; a Random-time episode has one at step 0 and more during the
+manipulation. This splits the event CVG (`lerobot_bavo.metrics.event_cvg`: how much of the target's visibility
+the camera restores within H samples) and the episodes' progress by event index, from `bavo-eval`'s own
+per-episode logs, so a policy that recovers the view only at the first event shows as such.
+
+    python scripts/event_recovery.py outputs/eval/grid_table/runs/afar/s1000/cube_handoff/episodes.jsonl ...
+    python scripts/event_recovery.py --label expert=<log> --label afar=<log> [--task cube_handoff]
+
+Prints, per log: Random-time episodes, then per event index the number of events reached, how many were
+retained (an event cut short by the episode's end has no CVG), the mean event CVG (pp) and the mean start
+step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+
+def per_event_index(episodes: list[dict]) -> dict[int, dict]:
+    """{event index: {"n", "retained", "cvg_pp" (mean over retained, or None), "start_step" (mean)}} over
+    the given episodes' `events` (bavo-eval's records)."""
+    cvgs: dict[int, list] = defaultdict(list)
+    starts: dict[int, list] = defaultdict(list)
+    for episode in episodes:
+        for event in episode.get("events") or []:
+            cvgs[event["index"]].append(event["cvg"])
+            starts[event["index"]].append(event["start_step"])
+    out = {}
+    for index in sorted(cvgs):
+        kept = [v for v in cvgs[index] if v is not None]
+        out[index] = {"n": len(cvgs[index]), "retained": len(kept),
+                      "cvg_pp": 100.0 * math.fsum(kept) / len(kept) if kept else None,
+                      "start_step": math.fsum(starts[index]) / len(starts[index])}
+    return out
+
+
+def read_random_episodes(path: Path, task: str | None) -> list[dict]:
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return [r for r in rows if r.get("condition") == "random" and (task is None or r.get("task") == task)]
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("logs", nargs="*", type=Path, help="bavo-eval episodes.jsonl files")
+    ap.add_argument("--label", action="append", default=[], metavar="NAME=episodes.jsonl")
+    ap.add_argument("--task", default=None, help="only this task's episodes")
+    ap.add_argument("--events", type=int, default=5, help="event indices to show (default 5)")
+    args = ap.parse_args(argv)
+    named = [(str(p), p) for p in args.logs]
+    for item in args.label:
+        name, sep, path = item.partition("=")
+        if not sep:
+            ap.error(f"--label wants NAME=episodes.jsonl, got {item!r}")
+        named.append((name, Path(path)))
+    if not named:
+        ap.error("give episodes.jsonl files")
+    header = " | ".join(f"event {i}: n / kept / CVG / start" for i in range(args.events))
+    print(f"| log | episodes | successes | {header} |")
+    print("|---|---|---|" + "---|" * args.events)
+    for name, path in named:
+        episodes = read_random_episodes(path, args.task)
+        stats = per_event_index(episodes)
+        cells = []
+        for i in range(args.events):
+            s = stats.get(i)
+            if s is None:
+                cells.append("-")
+                continue
+            cvg = "-" if s["cvg_pp"] is None else f"{s['cvg_pp']:.1f}"
+            cells.append(f"{s['n']} / {s['retained']} / {cvg} / {s['start_step']:.0f}")
+        wins = sum(bool(e.get("success")) for e in episodes)
+        print(f"| {name} | {len(episodes)} | {wins} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
