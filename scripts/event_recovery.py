@@ -8,10 +8,17 @@ per-episode logs, so a policy that recovers the view only at the first event sho
 
     python scripts/event_recovery.py outputs/eval/grid_table/runs/afar/s1000/cube_handoff/episodes.jsonl ...
     python scripts/event_recovery.py --label expert=<log> --label afar=<log> [--task cube_handoff]
+    python scripts/event_recovery.py --policy checkpoints/afar_cube_handoff --task cube_handoff \
+        --condition stage --seeds 1000-1009     # roll out, with CVG computed under any condition
 
-Prints, per log: Random-time episodes, then per event index the number of events reached, how many were
-retained (an event cut short by the episode's end has no CVG), the mean event CVG (pp) and the mean start
-step.
+bavo-eval computes CVG under Random-time only; `--policy` rolls the policy (or `expert`) out here with the
+frozen-camera counterfactual on (`BavoEnv(compute_cvg=True)`), so the Stage events, which come at the task's
+phase transitions, can be compared with the Random-time ones, which do not. Rollouts default to the
+validation seeds (1000+); test seeds (2000+) are for reporting.
+
+Prints, per log (its Random-time episodes) or rollout: episodes, successes, then per event index the number of
+events reached, how many were retained (an event cut short by the episode's end has no CVG), the mean event
+CVG (pp) and the mean start step.
 """
 
 from __future__ import annotations
@@ -46,26 +53,48 @@ def read_random_episodes(path: Path, task: str | None) -> list[dict]:
     return [r for r in rows if r.get("condition") == "random" and (task is None or r.get("task") == task)]
 
 
+def rollout_episodes(policy: str, task: str, condition: str, seeds: range) -> list[dict]:
+    """Episode records (bavo-eval's rollout) of `policy` with event CVG computed under any condition."""
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
+
+    env = BavoEnv(task=task, condition=condition, compute_cvg=True, **env_kwargs_for_policy(policy))
+    agent = make_agent(policy, env)
+    try:
+        return [run_episode(env, agent, seed) for seed in seeds]
+    finally:
+        env.close()
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("logs", nargs="*", type=Path, help="bavo-eval episodes.jsonl files")
     ap.add_argument("--label", action="append", default=[], metavar="NAME=episodes.jsonl")
     ap.add_argument("--task", default=None, help="only this task's episodes")
     ap.add_argument("--events", type=int, default=5, help="event indices to show (default 5)")
+    ap.add_argument("--policy", default=None,
+                    help="roll this checkpoint (or expert) out instead of reading logs")
+    ap.add_argument("--condition", default="stage", help="with --policy (default stage)")
+    ap.add_argument("--seeds", default="1000-1009", help="with --policy: first-last, inclusive")
     args = ap.parse_args(argv)
-    named = [(str(p), p) for p in args.logs]
+    named: list[tuple[str, list[dict]]] = [(str(p), read_random_episodes(p, args.task)) for p in args.logs]
     for item in args.label:
         name, sep, path = item.partition("=")
         if not sep:
             ap.error(f"--label wants NAME=episodes.jsonl, got {item!r}")
-        named.append((name, Path(path)))
+        named.append((name, read_random_episodes(Path(path), args.task)))
+    if args.policy is not None:
+        if args.task is None:
+            ap.error("--policy needs --task")
+        first, last = (int(s) for s in args.seeds.split("-"))
+        episodes = rollout_episodes(args.policy, args.task, args.condition, range(first, last + 1))
+        named.append((f"{args.policy} ({args.condition}, seeds {args.seeds})", episodes))
     if not named:
-        ap.error("give episodes.jsonl files")
+        ap.error("give episodes.jsonl files or --policy")
     header = " | ".join(f"event {i}: n / kept / CVG / start" for i in range(args.events))
     print(f"| log | episodes | successes | {header} |")
     print("|---|---|---|" + "---|" * args.events)
-    for name, path in named:
-        episodes = read_random_episodes(path, args.task)
+    for name, episodes in named:
         stats = per_event_index(episodes)
         cells = []
         for i in range(args.events):
