@@ -71,7 +71,7 @@ def collection_summary(train: dict) -> dict | None:
             "condition": settings["condition"], "execution_noise": settings.get("execution_noise"),
             "episodes": info["total_episodes"], "frames": info["total_frames"],
             "discarded": len(record.get("discarded", [])), "next_seed": record.get("next_seed"),
-            "base_seed": settings.get("base_seed", 0)}
+            "base_seed": settings.get("base_seed", 0), "mixed_from": record.get("mixed_from")}
 
 
 METHODS = {  # policy type -> (name on the card, what it is)
@@ -79,6 +79,15 @@ METHODS = {  # policy type -> (name on the card, what it is)
     "maniflow": ("ManiFlow", "consistency flow matching on point clouds: A-FAR's backbone, without its "
                              "future tokens"),
 }
+
+
+def mixed_data_text(data: dict, noise_text: str) -> str:
+    """The card's data sentence for a view joined by `scripts/mix_views.py` (a documented data variant)."""
+    parts = "; ".join(f"the first {m['episodes']} episodes of `{m['root']}` ({m['condition']})"
+                      for m in data["mixed_from"])
+    return (f"a data variant, not the paper's protocol: `scripts/mix_views.py` joined the `points` views of "
+            f"{parts} ({noise_text}{data['episodes']} episodes, {data['frames']:,} frames, simulator-exact "
+            "teacher; each source's collection command and seeds are in its `meta/bavo_collection.json`).")
 
 
 def card_task(data: dict | None, evals: list[dict]) -> str:
@@ -150,7 +159,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
             if noise
             else ""
         )
-        data_text = (
+        data_text = mixed_data_text(data, noise_text) if data.get("mixed_from") else (
             f"`bavo-collect --task {task} --condition {data['condition']} --episodes "
             f"{data['episodes']} "
             f"--repo-id {data['repo_id']} --root {data['root']} --workers 2{noise_flag}` "
@@ -165,6 +174,13 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")
     binary = config.get("binary_action_dims", [6, 13])
     demo = ", `bash scripts/demo.sh` (this checkpoint is its default)" if name == "afar_cube_handoff" else ""
+    if data is not None and data.get("mixed_from"):
+        how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
+               "recipe\"")
+    else:
+        how = (f"`TASK={task} scripts/train_task.sh {pol['type']}` with the matching environment variables; "
+               f"`TASK={task} bash scripts/train_task.sh recipe {pol['type']}` runs data, training, shipping "
+               "and evaluation")
     return f"""---
 library_name: lerobot
 tags: [lerobot, robotics, bavo-bench, {pol['type']}, active-vision]
@@ -188,9 +204,7 @@ inference (`binary_action_dims`). Teacher features are training-only.
 ## Training
 `lerobot-train --policy.type={pol['type']} --policy.preset={pol['preset']} {' '.join(extra)}
 --dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch}
---steps={train['steps']} --seed={train['seed']} --num_workers=0` (`TASK={task} scripts/train_task.sh
-{pol['type']}` with the matching environment variables; `TASK={task} bash scripts/train_task.sh recipe
-{pol['type']}` runs data, training, shipping and evaluation).
+--steps={train['steps']} --seed={train['seed']} --num_workers=0` ({how})
 Budget: {steps} steps x batch {batch} = {steps * batch:,} samples{schedule} ({epochs}the paper: 100K x 64 =
 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine
 schedule with {pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inference.

@@ -133,10 +133,15 @@ def test_a_learned_policy_episode_depends_only_on_its_seed():
 SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoints").iterdir() if p.is_dir())
 
 
+DATA_VARIANTS = ("mixsr",)  # data variants beside the recipe (docs/training.md): 50 Stage + 50 Random-time
+
+
 def method_and_task(folder: Path) -> tuple[str, str]:
     """`checkpoints/<method>_<task>` (training seed 1000) or `<method>_<task>_s<seed>` (another training seed,
-    as `scripts/train_task.sh recipe` names it)."""
-    match = re.fullmatch(r"([a-z]+)_([a-z_]+?)(?:_s\d+)?", folder.name)
+    as `scripts/train_task.sh recipe` names it), each with an optional data variant's suffix before the
+    seed."""
+    variants = "|".join(DATA_VARIANTS)
+    match = re.fullmatch(rf"([a-z]+)_([a-z_]+?)(?:_(?:{variants}))?(?:_s\d+)?", folder.name)
     assert match, folder.name
     return match.group(1), match.group(2)
 
