@@ -10,7 +10,9 @@ TPS (the appendix tables). Every SR of ours carries its 95 % Wilson interval ove
 training seeds with 20 episodes per condition each.
 
 `--run LABEL=results.json` adds a single `bavo-eval` run as a method with one training seed (repeat the label
-for more files of the same method, e.g. conditions evaluated separately).
+for more files of the same method, e.g. conditions evaluated separately). `--name METHOD=LABEL` shows a grid's
+method under a readable label (grid method names are folder names: `afar`, `afar-stage+random`); the order of
+the rows is the grid's, then the `--run` labels'.
 """
 
 from __future__ import annotations
@@ -241,6 +243,8 @@ def main(argv: list[str] | None = None) -> None:
         metavar="LABEL=results.json",
         help="a bavo-eval results.json and the method label it gets (repeat the label for more files)",
     )
+    p.add_argument("--name", action="append", default=[], metavar="METHOD=LABEL",
+                   help="show the grid's METHOD as LABEL (repeat)")
     p.add_argument("--output", type=Path, default=None, help="write the Markdown here (default: print it)")
     args = p.parse_args(argv)
     if args.grid is None and not args.run:
@@ -249,7 +253,17 @@ def main(argv: list[str] | None = None) -> None:
     if args.grid is not None:
         if not args.grid.is_file():
             p.error(f"no grid results file at {args.grid}")
-        methods.update(methods_of_grid(json.loads(args.grid.read_text())))
+        names = {}
+        for item in args.name:
+            method, sep, label = item.partition("=")
+            if not sep or not method or not label:
+                p.error(f"--name must be METHOD=LABEL, got {item!r}")
+            names[method] = label
+        grid_methods = methods_of_grid(json.loads(args.grid.read_text()))
+        unknown = sorted(set(names) - set(grid_methods))
+        if unknown:
+            p.error(f"--name: the grid has no method {', '.join(unknown)} (it has {', '.join(grid_methods)})")
+        methods.update({names.get(m, m): cells for m, cells in grid_methods.items()})
     runs: dict[str, list[Path]] = {}
     for item in args.run:
         label, sep, path = item.partition("=")
@@ -259,7 +273,8 @@ def main(argv: list[str] | None = None) -> None:
             p.error(f"no results file at {path}")
         runs.setdefault(label, []).append(Path(path))
     methods.update(methods_of_runs(runs))
-    sources = ([f"--grid {args.grid}"] if args.grid is not None else []) + [f'--run "{r}"' for r in args.run]
+    sources = [f"--grid {args.grid}"] if args.grid is not None else []
+    sources += [f'--name "{n}"' for n in args.name] + [f'--run "{r}"' for r in args.run]
     text = report(methods, sources)
     if args.output:
         args.output.write_text(text)

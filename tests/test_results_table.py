@@ -48,3 +48,19 @@ def test_paper_macro_matches_its_per_task_tables(table):
             for values, per_task in ((sr, 0), (tps, 1)):
                 mean = sum(table.PAPER_TASKS[t][method][per_task][i][0] for t in table.TASKS) / 5
                 assert mean == pytest.approx(values[i][0], abs=0.15), (method, i, per_task)
+
+
+def test_grid_methods_get_readable_names(table, tmp_path, capsys):
+    """`--name METHOD=LABEL` relabels a grid method; an unknown method is an error naming the grid's."""
+    import json
+
+    grid = {"methods": {"afar": {"cells": {f"cube_handoff/{c}": {"seeds": {"s1000": cell(25.0, 40)}}
+                                           for c in table.CONDITIONS}}}}
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(grid))
+    table.main(["--grid", str(path), "--name", "afar=A-FAR (ours)"])
+    out = capsys.readouterr().out
+    assert "| A-FAR (ours) | 1 of 5 | 1 | 25.0 |" in out and "| afar |" not in out
+    with pytest.raises(SystemExit):
+        table.main(["--grid", str(path), "--name", "act=ACT"])
+    assert "the grid has no method act (it has afar)" in capsys.readouterr().err
