@@ -10,9 +10,10 @@ TPS (the appendix tables). Every SR of ours carries its 95 % Wilson interval ove
 training seeds with 20 episodes per condition each.
 
 `--run LABEL=results.json` adds a single `bavo-eval` run as a method with one training seed (repeat the label
-for more files of the same method, e.g. conditions evaluated separately). `--name METHOD=LABEL` shows a grid's
-method under a readable label (grid method names are folder names: `afar`, `afar-stage+random`); the order of
-the rows is the grid's, then the `--run` labels'.
+for more files of the same method, e.g. conditions evaluated separately); a run's `episodes.jsonl[.gz]` works
+too (the committed logs in docs/results/grid_table, for a run whose checkpoint is not shipped).
+`--name METHOD=LABEL` shows a grid's method under a readable label (grid method names are folder names:
+`afar`, `afar-stage+random`); the order of the rows is the grid's, then the `--run` labels'.
 """
 
 from __future__ import annotations
@@ -93,13 +94,33 @@ def methods_of_grid(results: dict) -> dict[str, dict[str, dict[str, dict]]]:
             for name, m in results["methods"].items()}
 
 
+def cells_of_log(path: Path) -> dict[str, dict]:
+    """A run's cells from its per-episode log (`episodes.jsonl`, or the `.jsonl.gz` that
+    `scripts/grid_runs.py` commits), computed as bavo-eval computes them (`summarize_cell`)."""
+    import gzip
+
+    from lerobot_bavo.eval.run import summarize_cell
+
+    data = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+    by_cell: dict[str, list[dict]] = {}
+    for line in data.decode("utf-8").splitlines():
+        if line.strip():
+            record = json.loads(line)
+            by_cell.setdefault(f"{record['task']}/{record['condition']}", []).append(record)
+    return {key: summarize_cell(records) for key, records in by_cell.items()}
+
+
 def methods_of_runs(runs: dict[str, list[Path]]) -> dict[str, dict[str, dict[str, dict]]]:
-    """`--run LABEL=results.json` files -> the same shape, one training seed ("0") per method."""
+    """`--run LABEL=results.json` (or a run's `episodes.jsonl[.gz]`) files -> the same shape, one training
+    seed ("0") per method."""
     out: dict[str, dict[str, dict[str, dict]]] = {}
     for label, paths in runs.items():
         cells = out.setdefault(label, {})
         for path in paths:
-            for key, cell in json.loads(Path(path).read_text())["cells"].items():
+            path = Path(path)
+            run_cells = (cells_of_log(path) if path.name.endswith((".jsonl", ".jsonl.gz"))
+                         else json.loads(path.read_text())["cells"])
+            for key, cell in run_cells.items():
                 cells[key] = {"0": cell}
     return out
 

@@ -64,3 +64,17 @@ def test_grid_methods_get_readable_names(table, tmp_path, capsys):
     with pytest.raises(SystemExit):
         table.main(["--grid", str(path), "--name", "act=ACT"])
     assert "the grid has no method act (it has afar)" in capsys.readouterr().err
+
+
+def test_a_run_from_its_episode_log_matches_its_results(table, tmp_path):
+    """`--run LABEL=episodes.jsonl.gz`: the cells computed from the committed log are bavo-eval's (hand case:
+    2 Stage episodes, one success, progress 5 and 2 -> SR 50 %, TPS (100 + 40) / 2 = 70 %)."""
+    import gzip
+    import json
+
+    records = [{"task": "cube_handoff", "condition": "stage", "seed": 2000 + i, "success": i == 0,
+                "progress": p, "steps": 800, "episode_cvg": None, "events": []} for i, p in enumerate((5, 2))]
+    log = tmp_path / "episodes.jsonl.gz"
+    log.write_bytes(gzip.compress("".join(json.dumps(r) + "\n" for r in records).encode()))
+    (cell_,) = table.methods_of_runs({"act": [log]})["act"]["cube_handoff/stage"].values()
+    assert cell_["sr"] == 50.0 and cell_["tps"] == 70.0 and cell_["n_episodes"] == 2
