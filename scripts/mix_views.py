@@ -25,7 +25,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from lerobot_bavo.datasets.metadata import SIDECAR
+from lerobot_bavo.datasets.metadata import SIDECAR, read_sidecar
 from lerobot_bavo.datasets.views import view_source
 
 
@@ -38,12 +38,14 @@ def parse_source(text: str) -> tuple[Path, int]:
 
 
 def read_record(view_root: Path) -> dict:
-    """The `bavo-collect` record of the dataset the view `view_root` was made from."""
-    file = view_source(view_root) / SIDECAR
+    """The `bavo-collect` record of the dataset the view `view_root` was made from (`read_sidecar`)."""
     try:
-        return json.loads(file.read_text())
-    except (OSError, ValueError) as e:
-        raise SystemExit(f"{view_root}: no readable collection record at {file} ({e})") from e
+        record = read_sidecar(view_source(view_root))
+    except ValueError as e:  # a malformed record: read_sidecar's message names the file
+        raise SystemExit(f"{view_root}: {e}") from e
+    if record is None:
+        raise SystemExit(f"{view_root}: no collection record at {view_source(view_root) / SIDECAR}")
+    return record
 
 
 def stale_columns(columns, features) -> list[str]:

@@ -106,6 +106,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
     method, what = METHODS.get(pol["type"], (pol["type"], "a LeRobot policy"))
     task = card_task(data, evals)
     title = task.replace("_", " ").title()
+    mixed = bool(data is not None and data.get("mixed_from"))  # a view joined by scripts/mix_views.py
     steps_note = (f" (trained with {pol['num_inference_steps']}; set in the shipped config.json)"
                   if config["num_inference_steps"] != pol["num_inference_steps"] else "")
     chunk_note = (f" (the training config had {pol['n_action_steps']}; set in the shipped config.json)"
@@ -159,7 +160,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
             if noise
             else ""
         )
-        data_text = mixed_data_text(data, noise_text) if data.get("mixed_from") else (
+        data_text = mixed_data_text(data, noise_text) if mixed else (
             f"`bavo-collect --task {task} --condition {data['condition']} --episodes "
             f"{data['episodes']} "
             f"--repo-id {data['repo_id']} --root {data['root']} --workers 2{noise_flag}` "
@@ -174,7 +175,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")
     binary = config.get("binary_action_dims", [6, 13])
     demo = ", `bash scripts/demo.sh` (this checkpoint is its default)" if name == "afar_cube_handoff" else ""
-    if data is not None and data.get("mixed_from"):
+    if mixed:
         how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
                "recipe\"")
     else:
