@@ -24,7 +24,6 @@ CVG (pp) and the mean start step.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -49,7 +48,9 @@ def per_event_index(episodes: list[dict]) -> dict[int, dict]:
 
 
 def read_random_episodes(path: Path, task: str | None) -> list[dict]:
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    from lerobot_bavo.eval.run import read_episode_records
+
+    rows = read_episode_records(path)
     return [r for r in rows if r.get("condition") == "random" and (task is None or r.get("task") == task)]
 
 

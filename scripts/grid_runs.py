@@ -25,7 +25,7 @@ import json
 import shutil
 from pathlib import Path
 
-from lerobot_bavo.eval.run import read_episode_log
+from lerobot_bavo.eval.run import read_episode_records
 
 ARCHIVE = Path("docs/results/grid_table")
 FILES = ("run.json", "results.md")
@@ -46,7 +46,7 @@ def save(output_dir: Path, archive: Path) -> int:
     for rel in run_folders(output_dir, LOG):
         folder, dest = output_dir / rel, archive / rel
         log = folder / LOG
-        n = len(read_episode_log(log))
+        n = len(read_episode_records(log))  # read-only: a run may still be writing
         dest.mkdir(parents=True, exist_ok=True)
         for name in FILES:
             if (folder / name).is_file():
@@ -71,7 +71,7 @@ def restore(output_dir: Path, archive: Path) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src / "run.json", folder / "run.json")
         (folder / LOG).write_bytes(gzip.decompress(packed.read_bytes()))
-        n = len(read_episode_log(folder / LOG))
+        n = len(read_episode_records(folder / LOG))
         print(f"restored {n:4d} episodes: {src} -> {folder}")
         restored += 1
     return restored

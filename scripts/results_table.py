@@ -97,16 +97,11 @@ def methods_of_grid(results: dict) -> dict[str, dict[str, dict[str, dict]]]:
 def cells_of_log(path: Path) -> dict[str, dict]:
     """A run's cells from its per-episode log (`episodes.jsonl`, or the `.jsonl.gz` that
     `scripts/grid_runs.py` commits), computed as bavo-eval computes them (`summarize_cell`)."""
-    import gzip
+    from lerobot_bavo.eval.run import read_episode_records, summarize_cell
 
-    from lerobot_bavo.eval.run import summarize_cell
-
-    data = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
     by_cell: dict[str, list[dict]] = {}
-    for line in data.decode("utf-8").splitlines():
-        if line.strip():
-            record = json.loads(line)
-            by_cell.setdefault(f"{record['task']}/{record['condition']}", []).append(record)
+    for record in read_episode_records(path):
+        by_cell.setdefault(f"{record['task']}/{record['condition']}", []).append(record)
     return {key: summarize_cell(records) for key, records in by_cell.items()}
 
 

@@ -11,11 +11,11 @@ from _helpers import load_script
 def test_per_event_index_by_hand(tmp_path, capsys):
     tool = load_script("scripts/event_recovery.py")
     episodes = [
-        {"condition": "random", "task": "cube_handoff", "success": True,
+        {"condition": "random", "task": "cube_handoff", "seed": 1, "success": True,
          "events": [{"index": 0, "start_step": 0, "cvg": 0.8}, {"index": 1, "start_step": 90, "cvg": 0.2}]},
-        {"condition": "random", "task": "cube_handoff", "success": False,
+        {"condition": "random", "task": "cube_handoff", "seed": 2, "success": False,
          "events": [{"index": 0, "start_step": 0, "cvg": 0.6}, {"index": 1, "start_step": 70, "cvg": None}]},
-        {"condition": "stage", "task": "cube_handoff", "success": True,
+        {"condition": "stage", "task": "cube_handoff", "seed": 1, "success": True,
          "events": [{"index": 0, "start_step": 0, "cvg": 0.0}]},  # not Random-time: left out
     ]
     stats = tool.per_event_index([e for e in episodes if e["condition"] == "random"])

@@ -394,6 +394,30 @@ def test_a_torn_last_log_line_is_dropped_and_a_corrupt_middle_line_is_named(tmp_
         read_episode_log(log)
 
 
+def test_reading_a_log_for_analysis_leaves_a_torn_line_in_place_and_reads_gzip(tmp_path):
+    """Tables and breakdowns read finished runs, perhaps while bavo-eval still appends to one: the
+    analysis reader leaves out a torn last line without truncating the file, reads the committed .gz form,
+    and names a corrupt line as the resuming reader does."""
+    import gzip
+
+    from lerobot_bavo.eval.run import read_episode_records
+
+    records = [{"task": "cube_handoff", "condition": "stage", "seed": s, "success": s == 1} for s in (3, 1)]
+    complete = "".join(json.dumps(r) + "\n" for r in records)
+    log = tmp_path / "episodes.jsonl"
+    log.write_text(complete + '{"task": "cube_ha')
+    assert read_episode_records(log) == records  # in the order written
+    assert log.read_text() == complete + '{"task": "cube_ha'  # untouched
+
+    packed = tmp_path / "episodes.jsonl.gz"
+    packed.write_bytes(gzip.compress(complete.encode()))
+    assert read_episode_records(packed) == records
+
+    log.write_text(complete + '{"task": "cube_handoff"}\n')  # no condition / seed: not an episode record
+    with pytest.raises(SystemExit, match=r"episodes.jsonl line 3 is corrupt"):
+        read_episode_records(log)
+
+
 # A bavo-eval run whose episodes are fake and fast (the write path, resume and lock are the real ones):
 # `python -c FAKE_EVAL <seconds per episode> <bavo-eval arguments>`.
 FAKE_EVAL = """

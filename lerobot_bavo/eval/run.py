@@ -87,8 +87,38 @@ def markdown_table(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _episode_records(complete: bytes, log_path: Path) -> list[dict]:
+    """The records of complete `episodes.jsonl` lines; a line that does not parse is corruption: an error
+    naming the file and the line."""
+    records = []
+    for number, line in enumerate(complete.decode("utf-8", errors="replace").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            r = json.loads(line)
+            (r["task"], r["condition"], r["seed"])
+        except (json.JSONDecodeError, KeyError, TypeError) as e:
+            raise SystemExit(f"bavo-eval: {log_path} line {number} is corrupt ({e}); remove that line (its "
+                             "episode then runs again) or use another --output-dir") from None
+        records.append(r)
+    return records
+
+
+def read_episode_records(log_path: Path) -> list[dict]:
+    """Every finished episode of a run's per-episode log, in the order written, without touching the file:
+    for analysis of finished runs (tables, per-event breakdowns). Takes `episodes.jsonl` or the gzipped
+    `episodes.jsonl.gz` that `scripts/grid_runs.py` commits. A torn last line (no newline) is left out, as
+    `read_episode_log` would drop it; a corrupt line elsewhere is an error naming the file and the line."""
+    import gzip
+
+    data = log_path.read_bytes()
+    if log_path.suffix == ".gz":
+        data = gzip.decompress(data)
+    return _episode_records(data[: data.rfind(b"\n") + 1], log_path)
+
+
 def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
-    """Finished episodes of `episodes.jsonl`, keyed (task, condition, seed).
+    """Finished episodes of `episodes.jsonl`, keyed (task, condition, seed), for resuming a run.
 
     Every record is written as one line ending in a newline, so a last line without one is a torn write
     (a full disk, a kill mid-write): it is dropped (the file is truncated to the last complete line) with
@@ -96,9 +126,8 @@ def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
     error naming the file and the line."""
     import sys
 
-    done: dict[tuple[str, str, int], dict] = {}
     if not log_path.exists():
-        return done
+        return {}
     data = log_path.read_bytes()
     complete = data[: data.rfind(b"\n") + 1]
     if len(complete) < len(data):
@@ -110,16 +139,7 @@ def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
         )
         with open(log_path, "r+b") as fh:
             fh.truncate(len(complete))
-    for number, line in enumerate(complete.decode("utf-8", errors="replace").splitlines(), start=1):
-        if not line.strip():
-            continue
-        try:
-            r = json.loads(line)
-            done[(r["task"], r["condition"], r["seed"])] = r
-        except (json.JSONDecodeError, KeyError, TypeError) as e:
-            raise SystemExit(f"bavo-eval: {log_path} line {number} is corrupt ({e}); remove that line (its "
-                             "episode then runs again) or use another --output-dir") from None
-    return done
+    return {(r["task"], r["condition"], r["seed"]): r for r in _episode_records(complete, log_path)}
 
 
 def env_kwargs_for_run(policy: str, point_frame: str | None = None) -> dict:
