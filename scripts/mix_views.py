@@ -26,7 +26,7 @@ import tempfile
 from pathlib import Path
 
 from lerobot_bavo.datasets.metadata import SIDECAR, read_sidecar
-from lerobot_bavo.datasets.views import view_source
+from lerobot_bavo.datasets.views import drop_stale_episode_columns, view_source
 
 
 def parse_source(text: str) -> tuple[Path, int]:
@@ -48,23 +48,13 @@ def read_record(view_root: Path) -> dict:
     return record
 
 
-def stale_columns(columns, features) -> list[str]:
-    """Episode-metadata columns about features the view no longer has (`stats/<key>/...`,
-    `videos/<key>/...`). LeRobot's `modify_features` keeps them when it drops a feature, and its
-    `split_dataset` then fails re-aggregating them (an image's statistics in a dataset without that image)."""
-    return [c for c in columns if c.split("/")[0] in ("stats", "videos") and c.split("/")[1] not in features]
-
-
 def clean_copy(view_root: Path, into: Path) -> Path:
-    """A copy of the view's `meta/` without `stale_columns` (the data files linked, not copied) at `into`."""
-    import pandas as pd
-
+    """A copy of the view's `meta/` (the data files linked, not copied) at `into`, without the stale
+    episode columns that views made before `make_view` dropped them still carry
+    (`drop_stale_episode_columns`)."""
     shutil.copytree(view_root / "meta", into / "meta")
     (into / "data").symlink_to((view_root / "data").resolve(), target_is_directory=True)
-    features = json.loads((view_root / "meta" / "info.json").read_text())["features"]
-    for file in sorted((into / "meta" / "episodes").glob("*/*.parquet")):
-        table = pd.read_parquet(file)
-        table.drop(columns=stale_columns(table.columns, features)).to_parquet(file, index=False)
+    drop_stale_episode_columns(into)
     return into
 
 

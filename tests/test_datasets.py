@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 import torch
 
@@ -428,6 +429,11 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
         assert set(out.meta.features) - bookkeeping == keep | derived
         reloaded = LeRobotDataset(out.repo_id, root=tmp_path / view, video_backend="pyav")
         assert reloaded.meta.total_episodes == 2 and len(reloaded) == len(src)
+        # episode metadata only about the view's features (LeRobot's modify_features keeps the dropped ones')
+        columns = {c for f in (tmp_path / view / "meta" / "episodes").glob("*/*.parquet")
+                   for c in pq.read_schema(f).names}
+        about = {c.split("/")[1] for c in columns if c.startswith(("stats/", "videos/"))}
+        assert about <= set(out.meta.features) and S.ACTION in about
         a, b = reloaded[STEPS + 3], src[STEPS + 3]  # a frame of the second episode
         for key in keep - {S.OBS_IMAGE}:
             torch.testing.assert_close(a[key], b[key])

@@ -69,6 +69,7 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     output folder is an error (LeRobot would mix files), not silently overwritten.
     """
     from lerobot.datasets.dataset_tools import modify_features
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from lerobot_bavo.datasets.hub import load_bavo_dataset, read_sidecar
     from lerobot_bavo.runtime.files import restore_default_mode
@@ -92,7 +93,35 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     view_ds = modify_features(source, add_features=added or None, remove_features=drop,
                               output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
     restore_default_mode(Path(output_root).glob("videos/*/*/*.mp4"))  # copies keep the source's 0600 mp4s
+    if drop_stale_episode_columns(output_root):
+        # the metadata just rewritten (views are not whole BAVO datasets: LeRobot's reader, not ours)
+        view_ds = LeRobotDataset(view_ds.repo_id, root=output_root, video_backend="pyav")
     return view_ds
+
+
+def stale_episode_columns(columns, features) -> list[str]:
+    """Episode-metadata columns about features a dataset no longer has (`stats/<key>/...`,
+    `videos/<key>/...`). LeRobot 0.6.1's `modify_features` keeps them when it drops a feature, and its
+    `split_dataset` then fails re-aggregating them (an image's statistics in a dataset without that image)."""
+    return [c for c in columns if c.split("/")[0] in ("stats", "videos") and c.split("/")[1] not in features]
+
+
+def drop_stale_episode_columns(root: Path) -> int:
+    """Rewrite `root/meta/episodes/*/*.parquet` without `stale_episode_columns`; returns how many columns
+    went (0: nothing rewritten). Views made before this existed still carry them; this mends them in place."""
+    import json
+
+    import pandas as pd
+
+    features = json.loads((Path(root) / "meta" / "info.json").read_text())["features"]
+    dropped = 0
+    for file in sorted((Path(root) / "meta" / "episodes").glob("*/*.parquet")):
+        table = pd.read_parquet(file)
+        stale = stale_episode_columns(table.columns, features)
+        if stale:
+            table.drop(columns=stale).to_parquet(file, index=False)
+            dropped += len(stale)
+    return dropped
 
 
 def occluder_point_labels(source, rows_per_block: int = 4096) -> np.ndarray:
