@@ -22,7 +22,8 @@
 # which is, for each task:
 #   DATA=dart STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50 \
 #     bash scripts/train_task.sh afar --policy.points_per_step=128 --policy.n_action_steps=12 \
-#     --policy.occluder_dropout=0.5
+#     --policy.occluder_dropout=0.5 --policy.binary_action_levels="$(python -m lerobot_bavo.datasets.action_levels \
+#     --root outputs/datasets/bavo_<task>_dart_points)"   # [-1.0,1.0] except Drawer Stowing's [-1.0,-0.1,0.4,1.0]
 # A killed run resumes from its last checkpoint when the same command is run again (same variables: they name
 # the run folder, outputs/train/<task>_<method><TAG>_dart_s<SEED>).
 #
@@ -117,7 +118,11 @@ case "${1:-}" in
         ckpt=$(printf %06d "$STOP_AT")
         if [ ! -d "outputs/train/$run/checkpoints/$ckpt" ]; then
             # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
-            bash "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 &
+            # the gripper levels the demonstrations hold (part-open ones too: Drawer Stowing's 0.45 and 0.7)
+            levels=$(.venv/bin/python -m lerobot_bavo.datasets.action_levels \
+                --root "outputs/datasets/bavo_${TASK}_dart_points")
+            bash "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 \
+                --policy.binary_action_levels="$levels" &
             pid=$!
             while kill -0 "$pid" 2>/dev/null; do
                 # LeRobot moves `last` once a checkpoint is completely written
@@ -140,5 +145,5 @@ case "${1:-}" in
             --output "$ship"
         .venv/bin/python scripts/grid_runs.py save ;;  # the episode logs to commit (docs/results/grid_table)
     *)
-        sed -n 2,33p "$0"; exit 2 ;;
+        sed -n 2,35p "$0"; exit 2 ;;
 esac

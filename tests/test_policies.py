@@ -715,6 +715,31 @@ def test_gripper_dims_are_snapped_to_open_or_closed_and_nothing_else_changes():
                       normalization_mapping={"VISUAL": "IDENTITY", "STATE": "MIN_MAX", "ACTION": "MEAN_STD"})
 
 
+def test_gripper_dims_snap_to_the_nearest_held_level_when_levels_are_given():
+    """binary_action_levels adds part-open levels (Drawer Stowing's 0.45 and 0.7, normalised -0.1 and 0.4):
+    each snapped dimension goes to the nearest level, by hand; other dimensions and the default two-level
+    behaviour are unchanged; levels must be increasing, distinct and inside [-1, 1]."""
+    from lerobot_bavo.policies.maniflow.modeling_maniflow import snap_binary_dims
+
+    levels = (-1.0, -0.1, 0.4, 1.0)
+    x = torch.tensor([[-0.6, -0.5, 0.1, 0.2, 0.71, 0.69, 0.3]])
+    # midpoints between levels: -0.55, 0.15, 0.7; dimension 6 is not snapped
+    expected = torch.tensor([[-1.0, -0.1, -0.1, 0.4, 1.0, 0.4, 0.3]])
+    torch.testing.assert_close(snap_binary_dims(x, tuple(range(6)), levels), expected)
+    torch.testing.assert_close(snap_binary_dims(x, tuple(range(6)), (-1.0, 1.0)),
+                               snap_binary_dims(x, tuple(range(6))))
+    torch.manual_seed(0)
+    policy = make_maniflow(binary_action_levels=[-1, -0.1, 0.4, 1])
+    assert policy.config.binary_action_levels == levels
+    randomize_zero_init(policy, seed=0)
+    noise = torch.randn(2, 16, ACTION_DIM, generator=torch.Generator().manual_seed(3))
+    grip = policy.generate_actions(synthetic_batch(b=2, teacher=False), noise=noise)[..., [6, 13]]
+    assert set(grip.unique().tolist()) <= {torch.tensor(v).item() for v in levels}  # float32 levels
+    for bad in ([1.0], [-1.0, 1.0, 0.5], [-1.0, -1.0, 1.0], [-1.5, 1.0]):
+        with pytest.raises(ValueError, match="binary_action_levels"):
+            make_maniflow(binary_action_levels=bad)
+
+
 def test_sampled_chunks_are_clipped_to_the_normalised_data_range():
     """A 1-2 step flow sample can leave [-1, 1]; with clip_actions (default) the chunk is clamped there, and
     without it the raw sample comes back unchanged. A large random init makes the raw sample overshoot."""

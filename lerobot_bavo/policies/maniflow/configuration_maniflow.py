@@ -157,6 +157,14 @@ class ManiFlowConfig(PreTrainedConfig):
             (privileged-state ManiFlow, same checkpoint, 20 episodes: Clean SR 15 % -> 90 %, Stage 10 % -> 100
             %; docs/results/ladder_cube_handoff.md). Needs MIN_MAX action normalisation;
             `--policy.binary_action_dims=[]` turns it off. Training is unchanged.
+        binary_action_levels: The command levels `binary_action_dims` snap to, in MIN_MAX-normalised
+            units (-1: the dimension's lowest value in the training data, +1 its highest; a BAVO gripper
+            command g in [0, 1] is 2 g - 1), increasing, each in [-1, 1]. Default (-1, 1): fully closed or
+            open. Why others: an expert that holds a gripper part-open needs that level too. Drawer Stowing's
+            straddles the handle bar and lets go of it at 0.45 (-0.1) and releases the block at 0.7 (0.4);
+            snapped to the two ends, the 0.45 release becomes "closed", the right gripper never lets go of
+            the bar and every policy stopped at M2 (docs/results/first_grasp.md). Inference only, like the
+            snapping itself.
         ema_power: EMA warm-up power: decay at update k is clip(1 - (1 + k) ** -ema_power, 0, ema_max_decay).
         ema_max_decay: Upper bound of the EMA decay.
         flow_batch_ratio: Fraction of each batch trained with plain flow matching; the remaining
@@ -229,6 +237,7 @@ class ManiFlowConfig(PreTrainedConfig):
     use_ema_for_inference: bool = True
     clip_actions: bool = True
     binary_action_dims: tuple[int, ...] | None = None
+    binary_action_levels: tuple[float, ...] = (-1.0, 1.0)
 
     # Training objective and EMA.
     ema_power: float = 0.75
@@ -300,6 +309,13 @@ class ManiFlowConfig(PreTrainedConfig):
         if self.binary_action_dims is not None:
             self.binary_action_dims = tuple(int(d) for d in self.binary_action_dims)
         self._check_binary_action_dims_mode()
+        levels = tuple(float(v) for v in self.binary_action_levels)
+        if len(levels) < 2 or list(levels) != sorted(set(levels)) or not all(-1 <= v <= 1 for v in levels):
+            raise ValueError(
+                "`binary_action_levels` must be at least two distinct, increasing levels in [-1, 1] "
+                f"(MIN_MAX-normalised). Got {list(self.binary_action_levels)}."
+            )
+        self.binary_action_levels = levels
         if not 0.0 <= self.occluder_dropout <= 1.0:
             raise ValueError(
                 f"`occluder_dropout` must be a probability in [0, 1]. Got {self.occluder_dropout}."

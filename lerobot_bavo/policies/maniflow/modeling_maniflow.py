@@ -342,15 +342,20 @@ class DiTX(nn.Module):
 # ------------------------------------------------------------------------------------------------------------
 
 
-def snap_binary_dims(actions: Tensor, dims: tuple[int, ...]) -> Tensor:
-    """MIN_MAX-normalised actions (..., A) with the given dimensions snapped to the nearer end of their range:
-    > 0 -> +1, else -1 (for a gripper command: fully open or fully closed). Other dimensions are returned as
-    they are. Why: see `ManiFlowConfig.binary_action_dims`."""
+def snap_binary_dims(actions: Tensor, dims: tuple[int, ...],
+                     levels: tuple[float, ...] = (-1.0, 1.0)) -> Tensor:
+    """MIN_MAX-normalised actions (..., A) with the given dimensions snapped to the nearest of `levels`
+    (normalised units; by default the two ends of the range, > 0 -> +1, else -1: for a gripper command fully
+    open or fully closed; a tie goes to the lower level). Other dimensions are returned as they are. Why: see
+    `ManiFlowConfig.binary_action_dims` and `binary_action_levels`."""
     if not dims:
         return actions
     out = actions.clone()
     idx = list(dims)
-    out[..., idx] = torch.where(actions[..., idx] > 0, 1.0, -1.0).to(actions.dtype)
+    grid = torch.tensor(sorted(levels), dtype=actions.dtype, device=actions.device)
+    # nearest level; argmin takes the first of equal distances, so exact midpoints go down (0 -> -1 for two)
+    nearest = (actions[..., idx, None] - grid).abs().argmin(dim=-1)
+    out[..., idx] = grid[nearest]
     return out
 
 
@@ -673,7 +678,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
                                self.config.num_inference_steps)
         if self.config.clip_actions:
             actions = actions.clamp(-1.0, 1.0)
-        return snap_binary_dims(actions, self.config.binary_action_dims)
+        return snap_binary_dims(actions, self.config.binary_action_dims, self.config.binary_action_levels)
 
     @torch.no_grad()
     def predict_action_chunk(
