@@ -174,6 +174,17 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
     if pol.get("occluder_dropout"):  # the training recipe against the Stage occluder's position cue
         extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")
     binary = config.get("binary_action_dims", [6, 13])
+    teacher_text = ". Teacher features are training-only."
+    levels = [float(v) for v in config.get("binary_action_levels", [-1.0, 1.0])]
+    if levels == [-1.0, 1.0]:
+        snap_text = "snapped to fully open or fully closed at\ninference (`binary_action_dims`)"
+    else:
+        set_after = ([float(v) for v in pol.get("binary_action_levels", [-1.0, 1.0])] != levels)
+        snap_text = (f"snapped at inference to the nearest of the\nlevels the demonstrations hold, {levels} "
+                     "MIN_MAX-normalised (`binary_action_levels`, from `python -m\n"
+                     "lerobot_bavo.datasets.action_levels`"
+                     + ("; set in config.json after training, an inference-only setting" if set_after else "")
+                     + ")")
     demo = ", `bash scripts/demo.sh` (this checkpoint is its default)" if name == "afar_cube_handoff" else ""
     if mixed:
         how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
@@ -196,8 +207,7 @@ that differs from the paper, and why). Inputs: `observation.point_cloud` (256 co
 base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample)
 and `observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
 {config['n_action_steps']} executed per call{chunk_note}, sampled with {config['num_inference_steps']} Euler
-steps{steps_note}, the gripper commands (action dims {list(binary)}) snapped to fully open or fully closed at
-inference (`binary_action_dims`). Teacher features are training-only.
+steps{steps_note}, the gripper commands (action dims {list(binary)}) {snap_text}{teacher_text}
 
 ## Data
 {data_text}
