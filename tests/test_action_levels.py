@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -32,5 +34,32 @@ def test_levels_are_normalised_as_the_min_max_normaliser_does_with_the_ends_alwa
     assert normalised_levels({0: [0.0, 0.45, 1.0], 1: [0.7]}, low, high) == [-1.0, -0.1, 0.4, 1.0]
     assert normalised_levels({2: [1.0]}, low, high) == [-1.0, 0.5, 1.0]
     assert normalised_levels({}, low, high) == [-1.0, 1.0]
-    with pytest.raises(ValueError, match="constant"):
-        normalised_levels({0: [0.0]}, np.array([1.0]), np.array([1.0]))
+    # a constant dimension has no range to place a level in
+    assert normalised_levels({0: [1.0]}, np.array([1.0]), np.array([1.0])) == [-1.0, 1.0]
+
+
+def test_a_training_view_gives_the_levels_its_expert_holds(tmp_path, capsys):
+    """On a written LeRobot dataset: the gripper commands' held levels, read back through the CLI."""
+    import pandas as pd
+
+    from lerobot_bavo.datasets.action_levels import main
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for episode in range(2):  # a right gripper holding 1, then 0.45, then 0; a left one 1 then 0; arms random
+        right = [1.0] * 20 + [0.45] * 20 + [0.0] * 20
+        left = [1.0] * 30 + [0.0] * 30
+        for t in range(60):
+            action = rng.uniform(-1, 1, 21).astype(np.float32)
+            action[6], action[13] = left[t], right[t]
+            rows.append({"action": action, "episode_index": episode})
+    (tmp_path / "data" / "chunk-000").mkdir(parents=True)
+    pd.DataFrame(rows).to_parquet(tmp_path / "data" / "chunk-000" / "file-000.parquet")
+    (tmp_path / "meta").mkdir()
+    actions = np.stack([r["action"] for r in rows])
+    stats = {"action": {"min": actions.min(0).tolist(), "max": actions.max(0).tolist()}}
+    (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
+    main(["--root", str(tmp_path)])
+    assert capsys.readouterr().out.strip() == "[-1.0,-0.1,1.0]"  # 0.45 -> -0.1; the ramps-free ends
+    with pytest.raises(SystemExit, match="stats.json"):  # not a dataset: the missing file named
+        main(["--root", str(tmp_path / "meta")])

@@ -45,12 +45,13 @@ def held_levels(values: np.ndarray, episode_index: np.ndarray, min_run: int = 5,
 def normalised_levels(levels_per_dim: dict[int, list[float]], low: np.ndarray, high: np.ndarray,
                       decimals: int = 4) -> list[float]:
     """The union over dimensions of their held levels in MIN_MAX units (2 (x - low) / (high - low) - 1), with
-    the range's ends (-1, +1) always in: what `--policy.binary_action_levels` takes."""
+    the range's ends (-1, +1) always in: what `--policy.binary_action_levels` takes. A dimension that is
+    constant in the data adds nothing (it has no range to place a level in)."""
     out = {-1.0, 1.0}
     for dim, levels in levels_per_dim.items():
         span = float(high[dim]) - float(low[dim])
         if span <= 0:
-            raise ValueError(f"action dimension {dim} is constant ({low[dim]}): nothing to snap")
+            continue
         out.update(round(2.0 * (x - float(low[dim])) / span - 1.0, decimals) for x in levels)
     return sorted(min(1.0, max(-1.0, x)) for x in out)
 
