@@ -106,6 +106,11 @@ def test_policy_reads_the_panel_free_points_in_training_only():
     policy.train()
     with pytest.raises(KeyError, match="occluder"):
         policy.training_batch({"observation.point_cloud": cloud})
+    # reading every point, moving the panel's points to the end would leave them read: refused, not ignored
+    for reads_all in (n, 0):
+        cfg.points_per_step = reads_all
+        with pytest.raises(ValueError, match="reads all 8"):
+            policy.training_batch(batch)
 
 
 def test_batched_quaternion_matrices_equal_mujocos():

@@ -186,7 +186,9 @@ class ManiFlowConfig(PreTrainedConfig):
             like the same scene without the panel. Why: the Stage occluder sits on the line of sight to the
             current target, a position cue a policy can learn instead of the target
             (docs/results/occluder_shortcut.md). Needs the training-only label `observation.teacher.occluder`
-            of the `points` training view; 0 (default) turns it off. Inference is unchanged.
+            of the `points` training view, and `points_per_step` below the cloud's N (reading all points, the
+            moved points are still read: training refuses it); 0 (default) turns it off. Inference is
+            unchanged.
         compile: Compile the networks with `torch.compile` (point and state encoders, DiT-X, and A-FAR's
             WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA
             training where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the

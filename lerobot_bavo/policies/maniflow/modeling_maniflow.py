@@ -751,6 +751,14 @@ class ManiFlowPolicy(PreTrainedPolicy):
                 "a "
                 "dataset with `annotation.occluder_pose`), or set --policy.occluder_dropout=0."
             )
+        if self.config.num_tokens >= self.config.num_points:
+            # moved behind the points read, the panel's points would still be read: the cue stays
+            raise ValueError(
+                f"`occluder_dropout` moves the occluder's points behind the {self.config.num_tokens} points "
+                f"the policy reads; it reads all {self.config.num_points}, so the dropout would change "
+                "nothing (measured: Drawer Stowing at 256 of 256 points lost Clean as without dropout). Read "
+                "fewer points (--policy.points_per_step) or set --policy.occluder_dropout=0."
+            )
         keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
         return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p)
 
