@@ -43,7 +43,9 @@ CASES: dict[str, tuple[str, dict, dict]] = {
         {"relation_num_points": 12, "points_per_step": 24},
         {"invalid": (1, 4), "flat_teacher": True},
     ),
-    "afar_occluder_dropout": ("afar", {"occluder_dropout": 0.5}, {"occluder": True, "flat_teacher": True}),
+    # reads 24 of the 32 points: occluder dropout needs points behind those read (refused otherwise)
+    "afar_occluder_dropout": ("afar", {"occluder_dropout": 0.5, "points_per_step": 24},
+                              {"occluder": True, "flat_teacher": True}),
     "afar_current_relation_only": ("afar", {"use_future_evolution_loss": False}, {}),
     "afar_no_fusion": ("afar", {"use_fusion": False}, {}),
 }
