@@ -133,7 +133,8 @@ def test_a_learned_policy_episode_depends_only_on_its_seed():
 SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoints").iterdir() if p.is_dir())
 
 
-DATA_VARIANTS = ("mixsr",)  # data variants beside the recipe (docs/training.md): 50 Stage + 50 Random-time
+DATA_VARIANTS = ("mixsr", "mixsr200")  # data variants beside the recipe (docs/training.md): 50 (100) Stage +
+# 50 (100) Random-time demonstrations
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
