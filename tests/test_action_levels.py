@@ -40,7 +40,8 @@ def test_levels_are_normalised_as_the_min_max_normaliser_does_with_the_ends_alwa
 
 def test_a_training_view_gives_the_levels_its_expert_holds(tmp_path, capsys):
     """On a written LeRobot dataset: the gripper commands' held levels, read back through the CLI."""
-    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
     from lerobot_bavo.datasets.action_levels import main
 
@@ -54,9 +55,12 @@ def test_a_training_view_gives_the_levels_its_expert_holds(tmp_path, capsys):
             action[6], action[13] = left[t], right[t]
             rows.append({"action": action, "episode_index": episode})
     (tmp_path / "data" / "chunk-000").mkdir(parents=True)
-    pd.DataFrame(rows).to_parquet(tmp_path / "data" / "chunk-000" / "file-000.parquet")
-    (tmp_path / "meta").mkdir()
     actions = np.stack([r["action"] for r in rows])
+    # LeRobot's layout: the action a fixed-size list column of float32, the episode index int64
+    table = pa.table({"action": pa.FixedSizeListArray.from_arrays(pa.array(actions.reshape(-1)), 21),
+                      "episode_index": pa.array([r["episode_index"] for r in rows], pa.int64())})
+    pq.write_table(table, tmp_path / "data" / "chunk-000" / "file-000.parquet")
+    (tmp_path / "meta").mkdir()
     stats = {"action": {"min": actions.min(0).tolist(), "max": actions.max(0).tolist()}}
     (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
     main(["--root", str(tmp_path)])

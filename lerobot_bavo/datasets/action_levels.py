@@ -61,6 +61,7 @@ def dataset_binary_action_levels(root: Path, dims: tuple[int, ...] | None = None
     the policy's MIN_MAX normaliser), for `dims` (default: BAVO's gripper commands)."""
     import pyarrow.parquet as pq
 
+    from lerobot_bavo.datasets.fast import column_array
     from lerobot_bavo.sim.constants import GRIPPER_INDICES
 
     dims = tuple(GRIPPER_INDICES if dims is None else dims)
@@ -72,8 +73,8 @@ def dataset_binary_action_levels(root: Path, dims: tuple[int, ...] | None = None
     actions, episodes = [], []
     for file in files:
         table = pq.read_table(file, columns=["action", "episode_index"])
-        actions.append(np.stack(table.column("action").to_numpy(zero_copy_only=False)))
-        episodes.append(table.column("episode_index").to_numpy())
+        actions.append(column_array(table.column("action")))
+        episodes.append(column_array(table.column("episode_index")))
     action, episode = np.concatenate(actions), np.concatenate(episodes)
     per_dim = {d: held_levels(action[:, d], episode) for d in dims}
     return normalised_levels(per_dim, np.asarray(stats["min"]), np.asarray(stats["max"]))

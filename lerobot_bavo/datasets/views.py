@@ -69,7 +69,7 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     output folder is an error (LeRobot would mix files), not silently overwritten.
     """
     from lerobot.datasets.dataset_tools import modify_features
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.datasets.io_utils import load_episodes
 
     from lerobot_bavo.datasets.hub import load_bavo_dataset, read_sidecar
     from lerobot_bavo.runtime.files import restore_default_mode
@@ -94,8 +94,8 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
                               output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
     restore_default_mode(Path(output_root).glob("videos/*/*/*.mp4"))  # copies keep the source's 0600 mp4s
     if drop_stale_episode_columns(output_root):
-        # the metadata just rewritten (views are not whole BAVO datasets: LeRobot's reader, not ours)
-        view_ds = LeRobotDataset(view_ds.repo_id, root=output_root, video_backend="pyav")
+        # the episode table just rewritten, read as LeRobot's metadata reads it
+        view_ds.meta.episodes = load_episodes(Path(output_root))
     return view_ds
 
 
