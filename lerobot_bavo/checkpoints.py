@@ -24,7 +24,8 @@ traceback. Messages show values from the files through `limits.short_repr`.
 Fit: a checkpoint's `config.json` records the point count, image size and object-pose input it was
 trained on; the point-cloud frame (base or camera) is recorded only by the `bavo-collect` dataset it was
 trained on (`train_config.json` -> `meta/bavo_collection.json`, following a training view back to its
-source), so when that dataset is not on this machine the frame is unknown (`recorded_point_frame`).
+source), and so is the robot self-filter; when that dataset is not on this machine both are unknown
+(`recorded_cloud_settings`), unless the checkpoint carries them (`bavo_inputs.json`).
 """
 
 from __future__ import annotations
@@ -260,8 +261,9 @@ def checkpoint_digest(path: str | Path) -> str:
 def env_settings(path: str | Path) -> dict:
     """`BavoEnv` settings a checkpoint records: n_points (from the cloud's input shape, 6 channels),
     image_height / image_width (from `observation.images.active`, CHW), environment_state (object poses
-    among the inputs), and point_frame where its training data records it (`recorded_point_frame`). Keys it
-    does not record are absent (point_frame also when the checkpoint reads no point cloud)."""
+    among the inputs), and point_frame and self_filter where its training data records them
+    (`recorded_cloud_settings`). Keys it does not record are absent (point_frame and self_filter also when the
+    checkpoint reads no point cloud)."""
     file = Path(path) / "config.json"
     cfg = _read_json(file)
     inputs = cfg.get("input_features")
@@ -283,9 +285,9 @@ def env_settings(path: str | Path) -> dict:
                 f"{file}: observation.point_cloud shape {short_repr(shape)} is not N x 6 (xyz rgb)"
             )
         out["n_points"] = math.prod(shape) // POINT_CHANNELS
-        frame = recorded_point_frame(path)
-        if frame is not None:
-            out["point_frame"] = frame
+        cloud = recorded_cloud_settings(path)
+        if cloud is not None:
+            out.update(cloud)
     if OBS_IMAGE in inputs:
         shape = shape_of(OBS_IMAGE)
         if len(shape) != 3 or 3 not in (shape[0], shape[-1]):
@@ -307,39 +309,55 @@ def env_settings(path: str | Path) -> dict:
 INPUTS_RECORD = "bavo_inputs.json"
 
 
-def write_inputs_record(path: str | Path, point_frame: str) -> Path:
-    """Record beside a checkpoint's weights the point frame its training clouds were in, so that it loads
-    with the right env settings on a machine without its training data (see `recorded_point_frame`)."""
+def write_inputs_record(path: str | Path, point_frame: str, self_filter: bool = False) -> Path:
+    """Record beside a checkpoint's weights how its training clouds were made (frame; robot self-filter, only
+    when on), so that it loads with the right env settings on a machine without its training data (see
+    `recorded_cloud_settings`)."""
     if point_frame not in POINT_FRAMES:
         raise ValueError(f"point_frame must be 'base' or 'camera', got {point_frame!r}")
+    if not isinstance(self_filter, bool):
+        raise ValueError(f"self_filter must be true or false, got {self_filter!r}")
     out = Path(path) / INPUTS_RECORD
-    out.write_text(json.dumps({"point_frame": point_frame}, indent=2) + "\n")
+    record = {"point_frame": point_frame, **({"self_filter": True} if self_filter else {})}
+    out.write_text(json.dumps(record, indent=2) + "\n")
     return out
 
 
-def recorded_point_frame(path: str | Path) -> str | None:
-    """The point-cloud frame ("base" / "camera") the checkpoint at `path` was trained on, or None if no file
-    on this machine records it.
+def _cloud_settings(record: object, source: Path, strict: bool) -> dict | None:
+    """{"point_frame", "self_filter"} from a record holding them (an inputs record, or a collection record's
+    `settings`); a record without `self_filter` predates the option: off. None for an invalid record when
+    not `strict`; CheckpointMismatchError naming `source` when `strict`."""
+    frame = record.get("point_frame") if isinstance(record, dict) else None
+    self_filter = record.get("self_filter", False) if isinstance(record, dict) else None
+    if frame in POINT_FRAMES and isinstance(self_filter, bool):
+        return {"point_frame": frame, "self_filter": self_filter}
+    if not strict:
+        return None
+    raise CheckpointMismatchError(
+        f"{source}: point_frame must be 'base' or 'camera' and self_filter (optional) true or false; got "
+        f"point_frame {short_repr(frame)}, self_filter {short_repr(self_filter)}"
+    )
+
+
+def recorded_cloud_settings(path: str | Path) -> dict | None:
+    """How the clouds the checkpoint at `path` was trained on were made: {"point_frame": "base" / "camera",
+    "self_filter": bool}, or None if no file on this machine records it.
 
     A checkpoint that travels without its data (the shipped one, a Hub download) carries `bavo_inputs.json`
     (`INPUTS_RECORD`, written by `write_inputs_record`), which wins. Otherwise: LeRobot's policy config has no
     place for it; lerobot-train writes `train_config.json` beside the
     weights, whose `env` (when an eval env was configured) or `dataset` names where it came from. The
-    `bavo-collect` record of that dataset (`meta/bavo_collection.json`) holds `settings.point_frame`; a
+    `bavo-collect` record of that dataset (`meta/bavo_collection.json`) holds `settings`; a
     training view (`<root>_points`, see `lerobot_bavo.datasets.views`) has none, so its source folder is
     read instead. A relative dataset root is taken from the current folder, as lerobot-train did."""
     own = Path(path) / INPUTS_RECORD
     if own.is_file():
         try:
-            frame = json.loads(_read_text(own))["point_frame"]
-        except (json.JSONDecodeError, RecursionError, KeyError, TypeError) as exc:
+            record = json.loads(_read_text(own))
+        except (json.JSONDecodeError, RecursionError) as exc:
             raise CheckpointMismatchError(f"{own} is not a valid inputs record ({exc!r}); expected "
                                           '{"point_frame": "base"} or {"point_frame": "camera"}') from exc
-        if frame not in POINT_FRAMES:
-            raise CheckpointMismatchError(
-                f"{own}: point_frame must be 'base' or 'camera', got {short_repr(frame)}"
-            )
-        return frame
+        return _cloud_settings(record, own, strict=True)
     file = Path(path) / "train_config.json"
     if not file.is_file():
         return None
@@ -348,8 +366,10 @@ def recorded_point_frame(path: str | Path) -> str | None:
     except (json.JSONDecodeError, RecursionError, CheckpointMismatchError):
         return None
     env = train.get("env") if isinstance(train, dict) else None
-    if isinstance(env, dict) and env.get("type") == "bavo" and env.get("point_frame") in POINT_FRAMES:
-        return env["point_frame"]
+    if isinstance(env, dict) and env.get("type") == "bavo":
+        found = _cloud_settings(env, file, strict=False)
+        if found is not None:
+            return found
     dataset = train.get("dataset") if isinstance(train, dict) else None
     if not isinstance(dataset, dict):
         return None
@@ -367,12 +387,20 @@ def recorded_point_frame(path: str | Path) -> str | None:
     for root in roots:
         record = root / SIDECAR
         try:
-            frame = json.loads(record.read_text())["settings"]["point_frame"]
+            settings = json.loads(record.read_text())["settings"]
         except (OSError, ValueError, KeyError, TypeError):
             continue
-        if frame in POINT_FRAMES:
-            return frame
+        found = _cloud_settings(settings, record, strict=False)
+        if found is not None:
+            return found
     return None
+
+
+def recorded_point_frame(path: str | Path) -> str | None:
+    """The point-cloud frame ("base" / "camera") the checkpoint at `path` was trained on, or None if no file
+    on this machine records it (`recorded_cloud_settings`)."""
+    found = recorded_cloud_settings(path)
+    return None if found is None else found["point_frame"]
 
 
 def mismatches(recorded: dict, actual: dict) -> list[str]:

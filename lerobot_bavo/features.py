@@ -88,6 +88,10 @@ class ObservationSettings:
             `limits.MAX_POINTS`).
         point_frame: frame of the point-cloud xyz, one of `POINT_FRAMES`.
         fovy: active camera vertical field of view, degrees (for the intrinsics).
+        self_filter: drop the robot's own body (all three arms) from the point cloud before sampling it, as
+            real robots do with their model and joint state (`envs.pointcloud.robot_pixel_mask`). Why: in the
+            default cloud the arms take 35-60 % of the points, and a 4 cm block gets 2-7 of the 128 a policy
+            reads. Off by default: the paper's cloud keeps everything in the workspace box.
     """
 
     image_height: int = 240
@@ -95,6 +99,7 @@ class ObservationSettings:
     n_points: int = 256
     point_frame: str = "base"
     fovy: float = C.ACTIVE_CAMERA_FOVY
+    self_filter: bool = False
 
     def __post_init__(self):
         if self.image_height < 16 or self.image_width < 16:
@@ -107,6 +112,8 @@ class ObservationSettings:
             raise ValueError(
                 f"unknown point_frame {self.point_frame!r}; expected one of {', '.join(POINT_FRAMES)}"
             )
+        if not isinstance(self.self_filter, bool):
+            raise ValueError(f"self_filter must be true or false, got {self.self_filter!r}")
         problems = bound_problems({"image_height": self.image_height, "image_width": self.image_width,
                                    "n_points": self.n_points})  # upper bounds: `lerobot_bavo.limits`
         if problems:

@@ -318,12 +318,13 @@ def main() -> None:
     if not args.all_weights:
         kept, dropped = keep_inference_weights(args.output / "model.safetensors", config)
         print(f"model.safetensors: kept the {kept} inference tensors, dropped {dropped}")
-    from lerobot_bavo.checkpoints import recorded_point_frame, write_inputs_record
+    from lerobot_bavo.checkpoints import recorded_cloud_settings, write_inputs_record
 
-    frame = args.point_frame or recorded_point_frame(src)
+    cloud = recorded_cloud_settings(src) or {}
+    frame = args.point_frame or cloud.get("point_frame")
     if frame is None:
         raise SystemExit(f"the training data of {src} is not on this machine; pass --point-frame base|camera")
-    names.append(write_inputs_record(args.output, frame).name)
+    names.append(write_inputs_record(args.output, frame, cloud.get("self_filter", False)).name)
     total = sum((args.output / n).stat().st_size for n in names)
     if total > MAX_BYTES:
         raise SystemExit(f"{args.output} is {total / 1e6:.1f} MB > {MAX_BYTES / 1e6:.0f} MB")

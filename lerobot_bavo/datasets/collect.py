@@ -329,6 +329,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-width", type=int, default=default.image_width)
     p.add_argument("--n-points", type=int, default=default.n_points)
     p.add_argument("--point-frame", default="base", choices=POINT_FRAMES)
+    p.add_argument("--self-filter", action="store_true",
+                   help="drop the robot's own body (its three arms) from the point cloud before sampling it, "
+                        "as real robots do with their model and joint state; recorded with the dataset, and "
+                        "bavo-eval gives a policy trained on it the same cloud. Default: off (the paper's "
+                        "cloud)")
     p.add_argument(
         "--episode-length", type=int, default=None, help="control-step limit (default: the task's)"
     )
@@ -388,7 +393,8 @@ def main(argv: list[str] | None = None) -> int:
             seed=args.seed,
             commit_every=args.commit_every,
             settings=ObservationSettings(
-                args.image_height, args.image_width, args.n_points, args.point_frame
+                args.image_height, args.image_width, args.n_points, args.point_frame,
+                self_filter=args.self_filter,
             ),
             episode_length=args.episode_length,
             keep_failures=args.keep_failures,

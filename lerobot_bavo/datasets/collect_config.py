@@ -99,12 +99,15 @@ class CollectConfig:
         from lerobot_bavo.envs.tasks import make_task
 
         task = make_task(self.task)
+        settings = self.settings.to_dict()
+        if not settings["self_filter"]:  # only when on: records made before the option existed still match
+            del settings["self_filter"]
         return {
             "task": self.task,
             "task_description": task.description,
             "stage_targets": list(task.stage_targets),
             "condition": self.condition,
-            **self.settings.to_dict(),
+            **settings,
             "fps": S.FPS,
             "episode_length": self.episode_length,
             "base_seed": self.seed,

@@ -94,6 +94,7 @@ class EpisodeRecorder:
             n_points=settings.n_points,
             point_frame=settings.point_frame,
             fovy=settings.fovy,
+            self_filter=settings.self_filter,
             episode_length=episode_length,
             render_mode=None,
         )

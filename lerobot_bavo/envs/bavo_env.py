@@ -42,6 +42,7 @@ from lerobot_bavo.envs.pointcloud import (
     build_point_cloud,
     camera_pose_from_mujoco,
     intrinsics_from_fovy,
+    robot_pixel_mask,
 )
 from lerobot_bavo.envs.tasks import Task, make_task
 from lerobot_bavo.envs.visibility import TargetVisibility
@@ -64,6 +65,10 @@ from lerobot_bavo.sim.scene import add_occluder, build_base_spec
 # top (so the bare table surface is not sampled) to 0.6 m above it.
 WORKSPACE_LOW = np.array([-0.61, -0.37, 0.004])
 WORKSPACE_HIGH = np.array([0.61, 0.37, 0.6])
+# Self-filter (`self_filter=True`): a measured surface up to this much (metres) nearer than the robot model's
+# rendered surface still counts as the robot. The simulated depth matches the model exactly, so this only
+# has to absorb float error; anything further in front (a held object, the occluder) stays in the cloud.
+SELF_FILTER_TOLERANCE = 0.005
 
 
 class BavoEnv(gym.Env):
@@ -89,6 +94,10 @@ class BavoEnv(gym.Env):
             observation image (V is a pixel ratio; 0.5 keeps it cheap).
         environment_state: also observe the task's object poses (`environment_state`, privileged;
             for the privileged-state policies of the failure ladder, never for benchmark results).
+        self_filter: drop the robot's own body from the point cloud (`ObservationSettings.self_filter`): a
+            depth render of the robot model alone at the current joint state, compared with the measured
+            depth (`pointcloud.robot_pixel_mask`). Uses only what a real robot knows (its model, joints and
+            camera calibration); one more depth-only render per observation.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": C.CONTROL_HZ}
@@ -108,6 +117,7 @@ class BavoEnv(gym.Env):
         compute_cvg: bool | None = None,
         visibility_scale: float = 0.5,
         environment_state: bool = False,
+        self_filter: bool = ObservationSettings.self_filter,
     ):
         self.condition_rule = get_condition(condition)  # unknown names raise, listing the registered ones
         if render_mode not in (None, "rgb_array"):
@@ -116,7 +126,8 @@ class BavoEnv(gym.Env):
         self.task = task if isinstance(task, Task) else make_task(task)
         self.condition = self.condition_rule.name
         # checks them
-        self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy)
+        self.obs_settings = ObservationSettings(image_height, image_width, n_points, point_frame, fovy,
+                                                self_filter)
         self.render_mode = render_mode
         self.render_height = render_height
         if episode_length is not None and episode_length < 1:
@@ -404,9 +415,15 @@ class BavoEnv(gym.Env):
         s = self.obs_settings
         rgb, depth = self._render_active()
         self._observation_depth = depth  # a fresh array per render, never written to
+        robot_pixels = None
+        if s.self_filter:
+            robot_depth = self._renderer.render_depth(self.data, self._camera_id,
+                                                      hidden_groups=C.NON_ROBOT_GROUPS)
+            robot_pixels = robot_pixel_mask(depth, robot_depth, SELF_FILTER_TOLERANCE)
         cloud, pixels = build_point_cloud(
             rgb, depth, self._K, self.camera_pose(), s.n_points, frame=s.point_frame,
             workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH, stride=DEFAULT_STRIDE,
+            drop_pixels=robot_pixels,
         )
         obs = {
             ENV_STATE_KEY: self.joint_state().astype(np.float32),

@@ -60,6 +60,8 @@ class BavoEnvConfig(EnvConfig):
         n_points: points per point cloud (`observation.point_cloud`, (n_points, 6): xyz + rgb).
         point_frame: frame of the point-cloud xyz, "base" (robot base / world, default) or
             "camera" (active-camera frame, an ablation).
+        self_filter: drop the robot's own body from the point cloud (`ObservationSettings.self_filter`);
+            set it as the policy's training data was collected (`bavo-eval` reads it from the checkpoint).
         environment_state: also observe the task's object poses (`observation.environment_state`,
             (7 K,): xyz in metres in the base frame + wxyz quaternion per object). Privileged: for
             the privileged-state rung of the failure ladder, not for benchmark results.
@@ -78,6 +80,7 @@ class BavoEnvConfig(EnvConfig):
     image_width: int = ObservationSettings.image_width
     n_points: int = ObservationSettings.n_points
     point_frame: str = ObservationSettings.point_frame
+    self_filter: bool = ObservationSettings.self_filter
     environment_state: bool = False
     render_mode: str = "rgb_array"
     features: dict[str, PolicyFeature] = field(
@@ -100,8 +103,8 @@ class BavoEnvConfig(EnvConfig):
             raise ValueError(f"unsupported render_mode {self.render_mode!r}; expected one of {RENDER_MODES}")
         if self.fps != CONTROL_HZ:
             raise ValueError(f"fps={self.fps} but BAVO-Bench is controlled at {CONTROL_HZ} Hz")
-        # Image size, n_points and point_frame: the same checks as the env's and the datasets'.
-        ObservationSettings(self.image_height, self.image_width, self.n_points, self.point_frame)
+        # Image size, n_points, point_frame and self_filter: the same checks as the env's and the datasets'.
+        self.obs_settings  # noqa: B018  (builds ObservationSettings, which raises for invalid values)
         if self.episode_length is not None and self.episode_length < 1:
             raise ValueError(f"episode_length must be >= 1 or None, got {self.episode_length}")
 
@@ -123,7 +126,8 @@ class BavoEnvConfig(EnvConfig):
     @property
     def obs_settings(self) -> ObservationSettings:
         """The observation settings these fields describe (raises for invalid ones)."""
-        return ObservationSettings(self.image_height, self.image_width, self.n_points, self.point_frame)
+        return ObservationSettings(self.image_height, self.image_width, self.n_points, self.point_frame,
+                                   self_filter=self.self_filter)
 
     @property
     def package_name(self) -> str:
@@ -145,6 +149,7 @@ class BavoEnvConfig(EnvConfig):
             "image_width": self.image_width,
             "n_points": self.n_points,
             "point_frame": self.point_frame,
+            "self_filter": self.self_filter,
             "environment_state": self.environment_state,
             "render_mode": self.render_mode,
             "max_episode_steps": self.episode_length,

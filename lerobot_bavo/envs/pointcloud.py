@@ -15,9 +15,10 @@ Paper convention: T_B<-C = T_B<-E(q) T_E<-C. MuJoCo already composes the kinemat
 so `data.cam_xpos` / `data.cam_xmat` of a camera mounted on the camera arm give T_B<-C
 directly once the axes are converted (`camera_pose_from_mujoco`).
 
-The pipeline (`build_point_cloud`) is: stride-subsample pixels, drop invalid depth,
-back-project, transform to B, crop to the workspace box in B, farthest-point sample in B,
-and return xyz in the requested frame plus rgb in [0, 1] and each point's source pixel.
+The pipeline (`build_point_cloud`) is: stride-subsample pixels, drop invalid depth (and, with a
+self-filter, the robot's own pixels: `robot_pixel_mask`), back-project, transform to B, crop to the
+workspace box in B, farthest-point sample in B, and return xyz in the requested frame plus rgb in [0, 1]
+and each point's source pixel.
 """
 
 from __future__ import annotations
@@ -233,6 +234,31 @@ def farthest_point_sample(xyz: np.ndarray, n: int) -> np.ndarray:
     return np.resize(order, n)
 
 
+def robot_pixel_mask(depth: np.ndarray, robot_depth: np.ndarray, tolerance: float) -> np.ndarray:
+    """Pixels whose measured surface is the robot's own body: a robot self-filter, as real robots do it.
+
+    `robot_depth` is a depth render of the robot model alone (its links at the measured joint state, seen from
+    the calibrated camera pose), so it needs nothing a real robot does not know. A pixel belongs to the robot
+    where that render shows the robot (finite depth) and the measured surface is not in front of it by more
+    than `tolerance`; something between the camera and the robot (an object held, the occluder) is kept.
+
+    Args:
+        depth: (H, W) measured z-depth, metres.
+        robot_depth: (H, W) z-depth of the robot-only render, metres; +inf where it shows no robot.
+        tolerance: metres; a measured surface this much nearer than the robot's still counts as the robot.
+
+    Returns:
+        (H, W) bool, True on the robot's own pixels.
+    """
+    depth = np.asarray(depth)
+    robot_depth = np.asarray(robot_depth)
+    if depth.shape != robot_depth.shape or depth.ndim != 2:
+        raise ValueError(f"expected two (H, W) depth images, got {depth.shape} and {robot_depth.shape}")
+    if not tolerance >= 0:
+        raise ValueError(f"tolerance must be >= 0 metres, got {tolerance}")
+    return np.isfinite(robot_depth) & (depth >= robot_depth - tolerance)
+
+
 def build_point_cloud(
     rgb: np.ndarray,
     depth: np.ndarray,
@@ -244,6 +270,7 @@ def build_point_cloud(
     workspace_high: np.ndarray | None = None,
     max_depth: float = 3.0,
     stride: int = DEFAULT_STRIDE,
+    drop_pixels: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Coloured, cropped, farthest-point-sampled point cloud from one RGB-D view.
 
@@ -265,6 +292,8 @@ def build_point_cloud(
         stride: pixel subsampling step in both axes before FPS, >= 1; 1 keeps every pixel.
             It bounds the FPS cost, the dominant one (see `DEFAULT_STRIDE`). The kept grid
             starts at pixel (0, 0); no randomness is involved.
+        drop_pixels: (H, W) bool, pixels never sampled (e.g. `robot_pixel_mask`: the robot's own body);
+            None keeps every pixel. Dropped before FPS, so the points go to the rest of the view.
 
     Returns:
         cloud: (n_points, 6) float32, [x, y, z] in `frame` (metres) and [r, g, b] in [0, 1].
@@ -293,7 +322,12 @@ def build_point_cloud(
     # Stride subsampling and validity, without materialising the full-resolution cloud.
     d = depth[::stride, ::stride]
     d_width = d.shape[1]
-    flat = np.flatnonzero(np.isfinite(d) & (d > 0) & (d < max_depth))  # row-major, strided grid
+    valid = np.isfinite(d) & (d > 0) & (d < max_depth)
+    if drop_pixels is not None:
+        if np.shape(drop_pixels) != depth.shape:
+            raise ValueError(f"drop_pixels must be (H, W) = {depth.shape}, got {np.shape(drop_pixels)}")
+        valid &= ~np.asarray(drop_pixels, dtype=bool)[::stride, ::stride]
+    flat = np.flatnonzero(valid)  # row-major, strided grid
     z = d.reshape(-1)[flat].astype(np.float32, copy=False)
     v, u = np.divmod(flat, d_width)
     pts_cam = _backproject_pixels(u * stride, v * stride, z, K)  # (M, 3) in C

@@ -69,7 +69,8 @@ class LeRobotPolicyAgent:
                                     "pass .../checkpoints/<step>/pretrained_model")
         check_processor_steps(path, trust_remote_code=trust_remote_code)
         s = env.obs_settings
-        actual = {"n_points": s.n_points, "point_frame": s.point_frame, "image_height": s.image_height,
+        actual = {"n_points": s.n_points, "point_frame": s.point_frame, "self_filter": s.self_filter,
+                  "image_height": s.image_height,
                   "image_width": s.image_width, "environment_state": getattr(env, "environment_state", False)}
         wrong = mismatches(env_settings(path), actual)
         if wrong:
@@ -84,7 +85,7 @@ class LeRobotPolicyAgent:
         cfg.device = device
         env_cfg = BavoEnvConfig(task=env.task.name, condition=env.condition, image_height=s.image_height,
                                 image_width=s.image_width, n_points=s.n_points, point_frame=s.point_frame,
-                                environment_state=env.environment_state)
+                                self_filter=s.self_filter, environment_state=env.environment_state)
         self.policy = make_policy(cfg, env_cfg=env_cfg)
         check_weights_complete(self.policy, path)
         self.policy.eval()

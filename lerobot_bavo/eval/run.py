@@ -176,10 +176,11 @@ def env_kwargs_for_run(policy: str, point_frame: str | None = None) -> dict:
 
 
 def _identity(settings: dict) -> tuple:
-    """What must match to resume a run: seed, the checkpoint's digest (the expert's name), the point frame.
+    """What must match to resume a run: seed, the checkpoint's digest (the expert's name), the point frame and
+    the robot self-filter.
     The path is informational (run.json files written before the digest existed still resume)."""
     return (settings.get("seed"), settings.get("checkpoint_sha256") or settings.get("policy"),
-            settings.get("point_frame", "base"))
+            settings.get("point_frame", "base"), settings.get("self_filter", False))
 
 
 def append_record(log, record: dict) -> None:
@@ -264,6 +265,8 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
         settings["checkpoint_sha256"] = checkpoint_digest(policy)
     env_kwargs = env_kwargs_for_run(policy, point_frame)
     settings["point_frame"] = env_kwargs.get("point_frame", "base")
+    if env_kwargs.get("self_filter"):  # only when on: run.json files written before the option still resume
+        settings["self_filter"] = True
 
     lock = claim_output_dir(output_dir, "bavo-eval")
     try:

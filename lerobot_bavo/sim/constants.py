@@ -166,3 +166,6 @@ GROUP_ROBOT = 1
 GROUP_OBJECT = 2
 GROUP_OCCLUDER = 4
 GROUP_HIDDEN = 5
+# Every geom group MuJoCo has (mjNGROUP = 6) but the robot's: hidden, they leave a render of the robot model
+# alone (the self-filter, `envs.pointcloud.robot_pixel_mask`).
+NON_ROBOT_GROUPS = tuple(g for g in range(6) if g != GROUP_ROBOT)

@@ -93,6 +93,23 @@ class SceneRenderer:
         mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, self._ctx)
         return np.flipud(self._rgb).copy(), self._metric_depth_flipped()
 
+    def render_depth(self, data: mujoco.MjData, camera: str | int, pose=None, hidden_groups=(),
+                     background: float = np.inf) -> np.ndarray:
+        """Metric z-depth (H, W) float32 in metres (a fresh array), `background` where no geom is drawn
+        (the far plane). With `hidden_groups`, a render of the remaining groups only: e.g. the robot model
+        alone, for a self-filter (`envs.pointcloud.robot_pixel_mask`)."""
+        self._update(data, camera, pose, hidden_groups)
+        skybox = self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX]
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0  # the skybox writes depth just short of far
+        try:
+            mujoco.mjr_render(self._rect, self._scene, self._ctx)
+            mujoco.mjr_readPixels(None, self._depth, self._rect, self._ctx)
+        finally:
+            self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = skybox
+        depth = self._metric_depth_flipped()
+        depth[np.flipud(self._depth) >= 1.0] = background  # z-buffer 1: nothing drawn there
+        return depth
+
     def render_rgb(self, data: mujoco.MjData, camera: str | int, pose=None, hidden_groups=()) -> np.ndarray:
         self._update(data, camera, pose, hidden_groups)
         mujoco.mjr_render(self._rect, self._scene, self._ctx)
