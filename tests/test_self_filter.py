@@ -135,3 +135,17 @@ def test_setting_travels_with_records(tmp_path):
     assert BavoEnvConfig(self_filter=True).gym_kwargs["self_filter"] is True
     with pytest.raises(ValueError, match="self_filter must be true or false"):
         ObservationSettings(self_filter="yes")
+
+
+def test_cloud_composition_counts_by_hand():
+    from _helpers import load_script
+
+    from lerobot_bavo.sim import constants as C
+
+    composition = load_script("scripts/cloud_composition.py").composition
+    seg = np.array([[0, 1, 2],
+                    [3, -1, 2]])  # geom ids per pixel (-1: nothing)
+    groups = np.array([C.GROUP_ROBOT, C.GROUP_OBJECT, C.GROUP_OBJECT, C.GROUP_OCCLUDER])
+    pixels = np.array([[0, 0], [1, 0], [2, 0], [2, 1], [0, 1], [1, 1]])  # (u, v)
+    got = composition(seg, pixels, groups, {"block": [1], "cube": [2]})
+    assert got == {"robot": 1, "block": 1, "cube": 2, "occluder": 1, "other": 1}
