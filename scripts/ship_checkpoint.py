@@ -71,7 +71,8 @@ def collection_summary(train: dict) -> dict | None:
             "condition": settings["condition"], "execution_noise": settings.get("execution_noise"),
             "episodes": info["total_episodes"], "frames": info["total_frames"],
             "discarded": len(record.get("discarded", [])), "next_seed": record.get("next_seed"),
-            "base_seed": settings.get("base_seed", 0), "mixed_from": record.get("mixed_from")}
+            "base_seed": settings.get("base_seed", 0), "mixed_from": record.get("mixed_from"),
+            "n_points": settings.get("n_points", 256), "self_filter": settings.get("self_filter", False)}
 
 
 METHODS = {  # policy type -> (name on the card, what it is)
@@ -153,6 +154,10 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         frames = data["frames"]
         noise = data["execution_noise"]
         noise_flag = f" --execution-noise {noise['std']}" if noise else ""
+        if data.get("n_points", 256) != 256:
+            noise_flag += f" --n-points {data['n_points']}"
+        if data.get("self_filter"):
+            noise_flag += " --self-filter"
         noise_text = (
             f"DART-style execution noise: the env executed the expert's arm targets plus an AR(1) offset "
             f"of std {noise['std']} rad (correlation {noise['correlation']}), the clean targets are "
@@ -186,6 +191,13 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                      + ("; set in config.json after training, an inference-only setting" if set_after else "")
                      + ")")
     demo = ", `bash scripts/demo.sh` (this checkpoint is its default)" if name == "afar_cube_handoff" else ""
+    n_points = (data or {}).get("n_points", 256)
+    self_filter = bool((data or {}).get("self_filter"))
+    cloud_text = (f"{n_points} coloured points in the robot base frame"
+                  + (", the robot's own body dropped before sampling (`bavo-collect --self-filter`, "
+                     "docs/results/self_filter.md)" if self_filter else ""))
+    env_flags = (f" --env.n_points={n_points}" if n_points != 256 else "") + (
+        " --env.self_filter=true" if self_filter else "")
     if mixed:
         how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
                "recipe\"")
@@ -203,8 +215,8 @@ tags: [lerobot, robotics, bavo-bench, {pol['type']}, active-vision]
 {method} ({what}) trained with
 `lerobot-train` on scripted demonstrations of `{task}`, at the `{pol['preset']}`
 size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and docs/DESIGN.md for every size
-that differs from the paper, and why). Inputs: `observation.point_cloud` (256 coloured points in the robot
-base frame, of which the policy reads the first {pol.get('points_per_step') or 256}, an exact FPS subsample)
+that differs from the paper, and why). Inputs: `observation.point_cloud` ({cloud_text}, of which the policy
+reads the first {pol.get('points_per_step') or n_points}, an exact FPS subsample)
 and `observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
 {config['n_action_steps']} executed per call{chunk_note}, sampled with {config['num_inference_steps']} Euler
 steps{steps_note}, the gripper commands (action dims {list(binary)}) {snap_text}{teacher_text}
@@ -233,7 +245,8 @@ checkpoint (`tests/test_inference_checkpoint.py`).
 
 ## Use
 - `bavo-eval --policy PATH --tasks {task}`{demo}, or
-  `lerobot-eval --policy.path=PATH --env.type=bavo --env.task={task} --env.condition=stage`.
+  `lerobot-eval --policy.path=PATH --env.type=bavo --env.task={task} --env.condition=stage{env_flags}`
+  (`bavo-eval` reads the cloud settings from the checkpoint; `lerobot-eval` needs them as flags).
 - Push to the Hub: `huggingface-cli login`, then
   `huggingface-cli upload <user>/{pol['type']}_bavo_{task} checkpoints/{name} .`;
   load with `--policy.path=<user>/{pol['type']}_bavo_{task}`.
