@@ -198,7 +198,11 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                      "docs/results/self_filter.md)" if self_filter else ""))
     env_flags = (f" --env.n_points={n_points}" if n_points != 256 else "") + (
         " --env.self_filter=true" if self_filter else "")
-    if mixed:
+    if (data or {}).get("self_filter"):
+        how = (f"`TASK={task} DATA=dartsf512 scripts/train_task.sh {pol['type']}` with the recipe's other "
+               "variables, after the self-filtered collection: docs/results/self_filter.md gives every "
+               "command")
+    elif mixed:
         how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
                "recipe\"")
     else:
