@@ -133,8 +133,9 @@ def test_a_learned_policy_episode_depends_only_on_its_seed():
 SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoints").iterdir() if p.is_dir())
 
 
-DATA_VARIANTS = ("mixsr", "mixsr200")  # data variants beside the recipe (docs/training.md): 50 (100) Stage +
-# 50 (100) Random-time demonstrations
+# data variants beside the recipe (docs/training.md): 50 (100) Stage + 50 (100) Random-time demonstrations;
+# self-filtered clouds (sf)
+DATA_VARIANTS = ("mixsr", "mixsr200", "sf")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
