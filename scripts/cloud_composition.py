@@ -19,13 +19,7 @@ import argparse
 
 import numpy as np
 
-from lerobot_bavo.envs.bavo_env import SELF_FILTER_TOLERANCE, WORKSPACE_HIGH, WORKSPACE_LOW, BavoEnv
-from lerobot_bavo.envs.pointcloud import (
-    DEFAULT_STRIDE,
-    build_point_cloud,
-    intrinsics_from_fovy,
-    robot_pixel_mask,
-)
+from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import TASKS
 from lerobot_bavo.eval.rollout import make_agent, run_episode
 from lerobot_bavo.sim import constants as C
@@ -60,7 +54,6 @@ def main() -> None:
     env = BavoEnv(task=args.task, condition=args.condition, render_mode=None)
     s = env.obs_settings
     renderer = SceneRenderer(env.model, s.image_height, s.image_width)
-    K = intrinsics_from_fovy(s.fovy, s.image_height, s.image_width)
     agent = make_agent("expert", env)
     act = agent.act
     rows = []
@@ -70,13 +63,9 @@ def main() -> None:
         if step % args.every == 0:
             rgb, depth = obs["pixels"]["active"], env.observation_depth
             seg = renderer.render_segmentation(env.data, C.ACTIVE_CAMERA)
-            robot_depth = renderer.render_depth(env.data, C.ACTIVE_CAMERA, hidden_groups=C.NON_ROBOT_GROUPS)
             row = {"step": step}
-            for label, drop in (("plain", None),
-                                ("self_filter", robot_pixel_mask(depth, robot_depth, SELF_FILTER_TOLERANCE))):
-                _, pixels = build_point_cloud(rgb, depth, K, env.camera_pose(), s.n_points,
-                                              workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH,
-                                              stride=DEFAULT_STRIDE, drop_pixels=drop)
+            for label, self_filter in (("plain", False), ("self_filter", True)):
+                _, pixels = env.point_cloud_of_view(rgb, depth, self_filter=self_filter)
                 row[label] = composition(seg, pixels[: args.read], env.model.geom_group,
                                          env.task.target_geoms)
             rows.append(row)

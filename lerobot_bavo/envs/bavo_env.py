@@ -411,20 +411,30 @@ class BavoEnv(gym.Env):
             self._renderer = SceneRenderer(self.model, s.image_height, s.image_width)
         return self._renderer.render_rgbd(self.data, self._camera_id)
 
-    def _observation(self) -> dict:
+    def point_cloud_of_view(self, rgb: np.ndarray, depth: np.ndarray,
+                            self_filter: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The observation's (cloud, point pixels) from the active camera's RGB-D view of the current state:
+        the workspace crop, stride and FPS of every observation, with the robot self-filter as the env's
+        settings say or as `self_filter` overrides it (e.g. both clouds of one view:
+        scripts/cloud_composition.py)."""
         s = self.obs_settings
-        rgb, depth = self._render_active()
-        self._observation_depth = depth  # a fresh array per render, never written to
         robot_pixels = None
-        if s.self_filter:
+        if s.self_filter if self_filter is None else self_filter:
+            if self._renderer is None:
+                self._renderer = SceneRenderer(self.model, s.image_height, s.image_width)
             robot_depth = self._renderer.render_depth(self.data, self._camera_id,
                                                       hidden_groups=C.NON_ROBOT_GROUPS)
             robot_pixels = robot_pixel_mask(depth, robot_depth, SELF_FILTER_TOLERANCE)
-        cloud, pixels = build_point_cloud(
+        return build_point_cloud(
             rgb, depth, self._K, self.camera_pose(), s.n_points, frame=s.point_frame,
             workspace_low=WORKSPACE_LOW, workspace_high=WORKSPACE_HIGH, stride=DEFAULT_STRIDE,
             drop_pixels=robot_pixels,
         )
+
+    def _observation(self) -> dict:
+        rgb, depth = self._render_active()
+        self._observation_depth = depth  # a fresh array per render, never written to
+        cloud, pixels = self.point_cloud_of_view(rgb, depth)
         obs = {
             ENV_STATE_KEY: self.joint_state().astype(np.float32),
             "pixels": {"active": rgb},
