@@ -396,13 +396,6 @@ def recorded_cloud_settings(path: str | Path) -> dict | None:
     return None
 
 
-def recorded_point_frame(path: str | Path) -> str | None:
-    """The point-cloud frame ("base" / "camera") the checkpoint at `path` was trained on, or None if no file
-    on this machine records it (`recorded_cloud_settings`)."""
-    found = recorded_cloud_settings(path)
-    return None if found is None else found["point_frame"]
-
-
 def mismatches(recorded: dict, actual: dict) -> list[str]:
     """'key: checkpoint X, env Y' for every recorded setting the env does not have."""
     return [

@@ -329,32 +329,33 @@ def test_a_checkpoint_without_its_data_carries_its_point_frame(checkpoint, tmp_p
         INPUTS_RECORD,
         CheckpointMismatchError,
         env_settings,
-        recorded_point_frame,
+        recorded_cloud_settings,
         write_inputs_record,
     )
 
     cam = _copy(checkpoint, tmp_path / "cam")
-    assert recorded_point_frame(cam) is None  # nothing on this machine records it
+    assert recorded_cloud_settings(cam) is None  # nothing on this machine records it
     write_inputs_record(cam, "camera")
-    assert recorded_point_frame(cam) == "camera"
+    assert recorded_cloud_settings(cam)["point_frame"] == "camera"
     assert env_settings(cam)["point_frame"] == "camera"
     (cam / INPUTS_RECORD).write_text('{"point_frame": "world"}')
     with pytest.raises(
         CheckpointMismatchError, match="bavo_inputs.json: point_frame must be 'base' or 'camera'"
     ):
-        recorded_point_frame(cam)
+        recorded_cloud_settings(cam)
     (cam / INPUTS_RECORD).write_text("{not json")
     with pytest.raises(CheckpointMismatchError, match="bavo_inputs.json is not a valid inputs record"):
-        recorded_point_frame(cam)
+        recorded_cloud_settings(cam)
     with pytest.raises(ValueError, match="point_frame must be"):
         write_inputs_record(cam, "world")
 
 
 def test_the_shipped_checkpoint_records_its_point_frame():
-    from lerobot_bavo.checkpoints import recorded_point_frame
+    from lerobot_bavo.checkpoints import recorded_cloud_settings
 
     shipped = Path(__file__).resolve().parents[1] / "checkpoints" / "afar_cube_handoff"
-    assert recorded_point_frame(shipped) == "base"  # bavo-collect's default, what its data was collected in
+    # bavo-collect's default, what its data was collected in
+    assert recorded_cloud_settings(shipped)["point_frame"] == "base"
 
 
 # ----------------------------------------------------------------------------- 3. torn episodes.jsonl
