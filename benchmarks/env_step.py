@@ -5,9 +5,11 @@ happen as in real use) and measures
   * physics only:   `env.simulate(action)` (20 substeps of 2 ms, interpolated targets),
   * full step:      `env.step(action)` = physics + milestones + RGB-D render + point cloud,
   * bare render:    one RGB-D render of the active camera,
-and prints steps/s, the full-step / bare-render ratio and each task's per-step cost relative
-to Cube Handoff. The process pins itself to one core and asks Mesa's llvmpipe for one thread
-(LP_NUM_THREADS=1) before any GL context exists.
+  * self-filtered:  the full step of an env with `self_filter=True` (one more depth-only render of
+                    the robot model per step, docs/results/self_filter.md),
+and prints steps/s, the full-step / bare-render ratio, the self-filtered / full-step ratio and each
+task's per-step cost relative to Cube Handoff. The process pins itself to one core and asks Mesa's
+llvmpipe for one thread (LP_NUM_THREADS=1) before any GL context exists.
 
     python benchmarks/env_step.py [--tasks cube_handoff,...] [--points 256] [--height 240 --width 320]
 """
@@ -28,6 +30,7 @@ def measure(task: str, n_points: int, height: int, width: int, repeats: int) -> 
     from lerobot_bavo.experts import make_expert
 
     env = BavoEnv(task=task, image_height=height, image_width=width, n_points=n_points)
+    filtered = BavoEnv(task=task, image_height=height, image_width=width, n_points=n_points, self_filter=True)
     obs, info = env.reset(seed=0)
     expert = make_expert(env)
     expert.reset()
@@ -39,8 +42,8 @@ def measure(task: str, n_points: int, height: int, width: int, repeats: int) -> 
         if terminated or truncated:
             break
 
-    best = {"physics": float("inf"), "full": float("inf"), "render": float("inf")}
-    for _ in range(repeats):  # interleave the three measurements; keep the best of each
+    best = {"physics": float("inf"), "full": float("inf"), "render": float("inf"), "filtered": float("inf")}
+    for _ in range(repeats):  # interleave the four measurements; keep the best of each
         env.reset(seed=0)
         t0 = time.perf_counter()
         for a in actions:
@@ -53,11 +56,18 @@ def measure(task: str, n_points: int, height: int, width: int, repeats: int) -> 
             env.step(a)
         best["full"] = min(best["full"], (time.perf_counter() - t0) / len(actions))
 
+        filtered.reset(seed=0)
+        t0 = time.perf_counter()
+        for a in actions:
+            filtered.step(a)
+        best["filtered"] = min(best["filtered"], (time.perf_counter() - t0) / len(actions))
+
         t0 = time.perf_counter()
         for _ in range(len(actions) // 4):
             env._render_active()  # noqa: SLF001 - the bare render is exactly what we time
         best["render"] = min(best["render"], (time.perf_counter() - t0) / (len(actions) // 4))
     env.close()
+    filtered.close()
     return {"task": task, "steps": len(actions), **best}
 
 
@@ -80,11 +90,11 @@ def main() -> None:
     ref = rows[0]["full"]
     print(f"one core (cpu {args.core}), {args.height}x{args.width} RGB-D, {args.points}-point cloud")
     print(f"{'task':<18}{'steps':>6}{'physics/s':>11}{'full/s':>9}{'render ms':>11}{'full ms':>9}"
-          f"{'full/render':>13}{'vs first':>10}")
+          f"{'full/render':>13}{'vs first':>10}{'filtered ms':>13}{'filtered/full':>15}")
     for r in rows:
         print(f"{r['task']:<18}{r['steps']:>6}{1 / r['physics']:>11.0f}{1 / r['full']:>9.0f}"
               f"{1e3 * r['render']:>11.2f}{1e3 * r['full']:>9.2f}{r['full'] / r['render']:>13.2f}"
-              f"{r['full'] / ref:>10.2f}")
+              f"{r['full'] / ref:>10.2f}{1e3 * r['filtered']:>13.2f}{r['filtered'] / r['full']:>15.2f}")
 
 
 if __name__ == "__main__":
