@@ -1,12 +1,12 @@
 """`bavo-demo`: a short end-to-end run of BAVO-Bench: a learned A-FAR policy recovering its view.
 
-By default it runs the shipped A-FAR checkpoint (`checkpoints/afar_cube_handoff`, trained on CPU
-from 100 scripted Stage demonstrations, see its README.md) and the privileged scripted expert on
-Cube Handoff under Stage Occlusion, on held-out seeds (1000, 1001, ...; demonstrations used seeds
-0-99). For each it prints Success Rate and Task Progress Score (paper Sec. 3.3) and writes one mp4
-per episode: the third-person view beside the active-camera view, with a red border on the frames
-just after each occlusion event (the occluder is placed on the camera-to-target line of sight, and
-the policy must move the camera arm to see again).
+By default it runs the shipped A-FAR checkpoint (`checkpoints/afar_cube_handoff_sf`, trained on CPU from
+100 scripted Stage demonstrations with self-filtered point clouds, see its README.md) and the privileged
+scripted expert on Cube Handoff under Stage Occlusion, on held-out seeds (1000, 1001, ...;
+demonstrations used seeds 0-99). For each it prints Success Rate and Task Progress Score (paper Sec.
+3.3) and writes one mp4 per episode: the third-person view beside the active-camera view, with a red
+border on the frames just after each occlusion event (the occluder is placed on the camera-to-target
+line of sight, and the policy must move the camera arm to see again).
 
 Examples:
   bavo-demo                                    # shipped A-FAR + expert, cube_handoff, stage, 3 seeds
@@ -27,7 +27,7 @@ from lerobot_bavo.runtime.process import one_thread_unless_set
 one_thread_unless_set()
 
 # The checkpoint shipped in the repository (see its README.md for how it was trained and how to push it).
-SHIPPED_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "afar_cube_handoff"
+SHIPPED_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "afar_cube_handoff_sf"
 AGENTS = ("afar", "expert")
 
 

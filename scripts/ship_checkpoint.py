@@ -24,6 +24,8 @@ import json
 import shutil
 from pathlib import Path
 
+from lerobot_bavo.demo import SHIPPED_CHECKPOINT as DEMO_CHECKPOINT
+
 FILES = ("config.json", "model.safetensors", "train_config.json")
 MAX_BYTES = 7_000_000  # the size a shipped checkpoint may take in the repository (issue 27: at most 7 MB)
 
@@ -190,7 +192,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                      "lerobot_bavo.datasets.action_levels`"
                      + ("; set in config.json after training, an inference-only setting" if set_after else "")
                      + ")")
-    demo = ", `bash scripts/demo.sh` (this checkpoint is its default)" if name == "afar_cube_handoff" else ""
+    demo = ", `bash scripts/demo.sh` (this checkpoint is its default)" if name == DEMO_CHECKPOINT.name else ""
     n_points = (data or {}).get("n_points", 256)
     self_filter = bool((data or {}).get("self_filter"))
     cloud_text = (f"{n_points} coloured points in the robot base frame"

@@ -1,6 +1,6 @@
-"""The checkpoints shipped in `checkpoints/<method>_<task>` (`afar_cube_handoff` is the demo's policy) load in
-both evaluators and act: smoke tests (finite actions for a few steps), not SR assertions; SR is in each model
-card and docs/results/table.md."""
+"""The checkpoints shipped in `checkpoints/<method>_<task>` (`afar_cube_handoff_sf` is the demo's policy)
+load in both evaluators and act: smoke tests (finite actions for a few steps), not SR assertions; SR is
+in each model card and docs/results/table.md."""
 
 from __future__ import annotations
 
@@ -62,12 +62,18 @@ def test_shipped_checkpoint_acts_in_bavo_eval_agent_under_stage_occlusion():
         env.close()
 
 
-@pytest.mark.parametrize("folder", ["afar_cube_handoff", "maniflow_block_stacking"])
+@pytest.mark.parametrize("folder", [SHIPPED_CHECKPOINT.name, "maniflow_block_stacking"])
 def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path, folder):
-    """`lerobot-eval --policy.path=checkpoints/<method>_<task>` on its own task (two of the shipped folders:
-    both policy types, two tasks; every folder loads through the same code path as in the test above)."""
+    """`lerobot-eval --policy.path=checkpoints/<method>_<task>[_sf]` on its own task with the cloud flags its
+    card names (two of the shipped folders: both policy types, two tasks, the self-filtered demo policy and a
+    plain cloud; every folder loads through the same code path as in the test above)."""
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy
+
     checkpoint = SHIPPED_CHECKPOINT.parent / folder
-    task = folder.partition("_")[2]
+    task = folder.partition("_")[2].removesuffix("_sf")
+    cloud = env_kwargs_for_policy(str(checkpoint))
+    cloud_flags = [f"--env.n_points={cloud['n_points']}",
+                   f"--env.self_filter={str(cloud['self_filter']).lower()}"]
     exe = Path(sys.executable).with_name("lerobot-eval")
     env = dict(os.environ, HF_HUB_OFFLINE="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
                MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
@@ -80,6 +86,7 @@ def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path, folder):
             f"--env.task={task}",
             "--env.condition=stage",
             "--env.episode_length=8",
+            *cloud_flags,
             "--eval.n_episodes=1",
             "--eval.batch_size=1",
             "--eval.use_async_envs=false",
