@@ -3,7 +3,7 @@
 By default it runs the shipped A-FAR checkpoint (`checkpoints/afar_cube_handoff_sf`, trained on CPU from
 100 scripted Stage demonstrations with self-filtered point clouds, see its README.md) and the privileged
 scripted expert on Cube Handoff under Stage Occlusion, on held-out seeds (1000, 1001, ...;
-demonstrations used seeds 0-99). For each it prints Success Rate and Task Progress Score (paper Sec.
+demonstrations used seeds below 1000). For each it prints Success Rate and Task Progress Score (paper Sec.
 3.3) and writes one mp4 per episode: the third-person view beside the active-camera view, with a red
 border on the frames just after each occlusion event (the occluder is placed on the camera-to-target
 line of sight, and the policy must move the camera arm to see again).

@@ -16,6 +16,10 @@
 #                                             # checkpoints/<method>_<task> and evaluated on the 40 test seeds in
 #                                             # outputs/eval/grid_table/runs/<method>/s<SEED>/<task> (its episode
 #                                             # log copied to docs/results/grid_table); resumable
+#   SELF_FILTER=1 bash scripts/train_task.sh recipe METHOD  # the same on self-filtered clouds (the robot's own
+#                                             # body dropped, 512 stored points: docs/results/self_filter.md),
+#                                             # data variant dartsf512, shipped to checkpoints/<method>_<task>_sf,
+#                                             # evaluated in outputs/eval/grid_table/runs/<method>-self-filter/...
 #
 # The shipped A-FARs (checkpoints/afar_<task>: step 4000 of a 5000-step cosine schedule, fixed in advance):
 #   TASK=block_stacking bash scripts/train_task.sh recipe afar
@@ -32,7 +36,8 @@
 # TAG (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/cube_handoff_maniflow_state_b256_s1000), STOP_AT,
 # WORKERS (collection and evaluation processes, default 2), and DATA: empty for the noise-free demonstrations
 # (outputs/datasets/bavo_<task>), `dart` for the DART-style ones collected with `--execution-noise $NOISE`
-# (default 0.01 rad; outputs/datasets/bavo_<task>_dart, runs get a _dart suffix).
+# (default 0.01 rad; outputs/datasets/bavo_<task>_dart, runs get a _dart suffix); SELF_FILTER=1 collects with
+# `--n-points 512 --self-filter` (use it with DATA=dartsf512, as `recipe` does).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
@@ -42,6 +47,7 @@ DATA="${DATA:-}"
 WORKERS="${WORKERS:-2}"
 STOP_AT="${STOP_AT:-4000}"
 NOISE="${NOISE:-0.01}"
+SELF_FILTER="${SELF_FILTER:-}"
 DS=outputs/datasets/bavo_${TASK}${DATA:+_$DATA}
 REPO=local/bavo_${TASK}${DATA:+_$DATA}
 STEPS="${STEPS:-8000}"
@@ -88,7 +94,8 @@ test_eval() {  # test_eval POLICY OUTPUT_DIR [bavo-eval args...]: the 40 test se
 case "${1:-}" in
     collect)
         .venv/bin/bavo-collect --task "$TASK" --condition stage --episodes 100 --repo-id "$REPO" \
-            --root "$DS" --workers "$WORKERS" ${DATA:+--execution-noise "$NOISE"} ;;
+            --root "$DS" --workers "$WORKERS" ${DATA:+--execution-noise "$NOISE"} \
+            ${SELF_FILTER:+--n-points 512 --self-filter} ;;
     views)
         for v in points state; do
             [ -d "${DS}_$v" ] || .venv/bin/python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
@@ -109,18 +116,21 @@ case "${1:-}" in
     recipe)
         method=${2:?usage: recipe afar|maniflow}
         case "$method" in afar|maniflow) ;; *) echo "recipe: afar or maniflow, not '$method'" >&2; exit 2 ;; esac
-        export DATA=dart STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50
+        # the data variant, the shipped folder's suffix and the grid entry's suffix
+        data=dart suffix="" entry=""
+        [ -n "$SELF_FILTER" ] && data=dartsf512 suffix=_sf entry=-self-filter
+        export DATA=$data STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50
         # bavo-collect resumes a killed collection; the marker (beside the dataset) says it finished
-        [ -f "outputs/datasets/bavo_${TASK}_dart.collected" ] \
-            || { bash "$0" collect && touch "outputs/datasets/bavo_${TASK}_dart.collected"; }
+        [ -f "outputs/datasets/bavo_${TASK}_$data.collected" ] \
+            || { bash "$0" collect && touch "outputs/datasets/bavo_${TASK}_$data.collected"; }
         bash "$0" views
-        run="${TASK}_${method}_p128_od50_dart_s$SEED"
+        run="${TASK}_${method}_p128_od50_${data}_s$SEED"
         ckpt=$(printf %06d "$STOP_AT")
         if [ ! -d "outputs/train/$run/checkpoints/$ckpt" ]; then
             # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
             # the gripper levels the demonstrations hold (part-open ones too: Drawer Stowing's 0.45 and 0.7)
             levels=$(.venv/bin/python -m lerobot_bavo.datasets.action_levels \
-                --root "outputs/datasets/bavo_${TASK}_dart_points")
+                --root "outputs/datasets/bavo_${TASK}_${data}_points")
             bash "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 \
                 --policy.binary_action_levels="$levels" &
             pid=$!
@@ -136,9 +146,9 @@ case "${1:-}" in
         fi
         # ship the inference weights, evaluate the shipped folder where `bavo-eval --grid
         # configs/grid_table.yaml` finds it (runs/<method>/s<SEED>/<task>), then write its card with the results
-        ship="checkpoints/${method}_${TASK}"  # the first training seed's; others get a suffix
+        ship="checkpoints/${method}_${TASK}$suffix"  # the first training seed's; others get a suffix
         [ "$SEED" = 1000 ] || ship="${ship}_s$SEED"
-        evaldir="outputs/eval/grid_table/runs/$method/s$SEED/$TASK"
+        evaldir="outputs/eval/grid_table/runs/$method$entry/s$SEED/$TASK"
         .venv/bin/python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
         test_eval "$ship" "$evaldir" --videos 0
         .venv/bin/python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
