@@ -1,7 +1,9 @@
 """Copy a trained `lerobot-train` checkpoint into the repository with a model card (README.md).
 
 The card is written from what the run and its evaluation recorded (train_config.json, the training
-log's wall time, bavo-eval's results.json), so its numbers are the measured ones.
+log's wall time, bavo-eval's results.json), so its numbers are the measured ones. The wall time is read
+from `<output_dir>.log` (what `scripts/train_task.sh` tees lerobot-train's output to) when it is on this
+machine, summed over resumed segments up to the shipped step; `--wall-min` overrides it.
 
     python scripts/ship_checkpoint.py --run outputs/train/afar_s1000 --step 006000 \\
         --eval outputs/eval/afar_s1000_006000/results.json --output checkpoints/afar_cube_handoff
@@ -21,7 +23,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
+from datetime import datetime
 from pathlib import Path
 
 from lerobot_bavo.demo import SHIPPED_CHECKPOINT as DEMO_CHECKPOINT
@@ -49,6 +53,31 @@ def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
         shutil.copymode(file, tmp)
         tmp.replace(file)
     return len(kept), len(tensors) - len(kept)
+
+
+# lerobot-train's log lines that delimit the training time: each (re)start, and each checkpoint it saves
+TRAIN_LOG_EVENT = re.compile(
+    r"(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d) \S+ (?:Start offline training|Checkpoint policy after step (\d+))"
+)
+
+
+def training_wall_min(log_text: str, step: int) -> float | None:
+    """Wall minutes lerobot-train spent reaching checkpoint `step`, from its log: each segment (a start or a
+    resume) counts from its start to the last checkpoint it saved at or before `step` (work after that
+    checkpoint was lost to the stop and redone by the next segment). None if the log never saved `step`."""
+    total = 0.0
+    start = end = None
+    for match in TRAIN_LOG_EVENT.finditer(log_text):
+        when = datetime.strptime(match.group(1), "%Y-%m-%d %H:%M:%S")
+        if match.group(2) is None:  # a (re)start: close the previous segment at its last kept checkpoint
+            if start is not None and end is not None:
+                total += (end - start).total_seconds()
+            start, end = when, None
+        elif start is not None and int(match.group(2)) <= step:
+            end = when
+            if int(match.group(2)) == step:
+                return (total + (end - start).total_seconds()) / 60
+    return None
 
 
 def collection_summary(train: dict) -> dict | None:
@@ -284,7 +313,9 @@ def main() -> None:
     p.add_argument("--notes", type=Path, default=None, help="a Markdown file appended to the card's results")
     p.add_argument("--output", type=Path, required=True,
                    help="where to ship it, e.g. checkpoints/afar_<task>")
-    p.add_argument("--wall-min", type=float, default=None, help="training wall time in minutes, for the card")
+    p.add_argument("--wall-min", type=float, default=None,
+                   help="training wall time in minutes, for the card; default: read from <output_dir>.log "
+                   "(lerobot-train's log) if it is on this machine")
     p.add_argument(
         "--point-frame",
         choices=POINT_FRAMES,
@@ -352,7 +383,11 @@ def main() -> None:
         train["shipped_step"] = int(args.step)
     evals = [json.loads(path.read_text()) for path in args.eval]
     notes = args.notes.read_text() if args.notes else ""
-    card_text = card(train, evals, args.wall_min, args.output.name, collection_summary(train), config, notes)
+    wall_min = args.wall_min
+    log = Path(f"{train.get('output_dir', '')}.log")
+    if wall_min is None and train.get("output_dir") and log.is_file() and "shipped_step" in train:
+        wall_min = training_wall_min(log.read_text(errors="replace"), train["shipped_step"])
+    card_text = card(train, evals, wall_min, args.output.name, collection_summary(train), config, notes)
     (args.output / "README.md").write_text(card_text)
     print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
 

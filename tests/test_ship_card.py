@@ -1,0 +1,49 @@
+"""The training wall time a shipped checkpoint's card states (`scripts/ship_checkpoint.py`), read from the
+lerobot-train log: hand-made logs with known segment times."""
+
+from __future__ import annotations
+
+import pytest
+from _helpers import load_script
+
+training_wall_min = load_script("scripts/ship_checkpoint.py").training_wall_min
+
+
+def _line(stamp: str, text: str) -> str:
+    return f"INFO 2026-11-{stamp} ot_train.py:597 {text}\n"
+
+
+# a run stopped after its step-1000 checkpoint (its steps 1000-1150 were lost), then resumed from 1000
+RESUMED = (
+    _line("26 10:00:00", "Start offline training on a fixed dataset")
+    + "Training:  10%| 500/5000 [05:00<45:00]\n"
+    + _line("26 10:05:00", "Checkpoint policy after step 500")
+    + _line("26 10:10:00", "Checkpoint policy after step 1000")
+    + _line("26 10:11:30", "step:1K smpl:128K")
+    + _line("26 11:00:00", "Start offline training on a fixed dataset")
+    + _line("26 11:06:00", "Checkpoint policy after step 1500")
+    + _line("26 11:12:30", "Checkpoint policy after step 2000")
+)
+
+
+@pytest.mark.parametrize(("step", "minutes"), [(500, 5.0), (1000, 10.0), (1500, 16.0), (2000, 22.5)])
+def test_segments_count_from_their_start_to_the_last_kept_checkpoint(step, minutes):
+    assert training_wall_min(RESUMED, step) == pytest.approx(minutes)
+
+
+def test_a_step_never_saved_has_no_wall_time():
+    assert training_wall_min(RESUMED, 2500) is None
+    assert training_wall_min("", 1000) is None
+
+
+def test_a_segment_stopped_before_its_first_checkpoint_adds_nothing():
+    log = (_line("26 10:00:00", "Start offline training") + _line("26 10:20:00", "step:200 smpl:25K")
+           + _line("26 11:00:00", "Start offline training")
+           + _line("26 11:07:00", "Checkpoint policy after step 500"))
+    assert training_wall_min(log, 500) == pytest.approx(7.0)
+
+
+def test_a_run_across_midnight():
+    log = (_line("26 23:58:00", "Start offline training")
+           + _line("27 00:02:30", "Checkpoint policy after step 500"))
+    assert training_wall_min(log, 500) == pytest.approx(4.5)
