@@ -405,11 +405,15 @@ class BavoEnv(gym.Env):
         """The `info` a step would return for the current state; {} before the first `reset`."""
         return self._info() if self._tracker is not None else {}
 
-    def _render_active(self) -> tuple[np.ndarray, np.ndarray]:
-        s = self.obs_settings
+    def _active_renderer(self) -> SceneRenderer:
+        """The observation-size renderer of the active camera's views, made on first use (a GL context)."""
         if self._renderer is None:
+            s = self.obs_settings
             self._renderer = SceneRenderer(self.model, s.image_height, s.image_width)
-        return self._renderer.render_rgbd(self.data, self._camera_id)
+        return self._renderer
+
+    def _render_active(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._active_renderer().render_rgbd(self.data, self._camera_id)
 
     def point_cloud_of_view(self, rgb: np.ndarray, depth: np.ndarray,
                             self_filter: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -420,10 +424,8 @@ class BavoEnv(gym.Env):
         s = self.obs_settings
         robot_pixels = None
         if s.self_filter if self_filter is None else self_filter:
-            if self._renderer is None:
-                self._renderer = SceneRenderer(self.model, s.image_height, s.image_width)
-            robot_depth = self._renderer.render_depth(self.data, self._camera_id,
-                                                      hidden_groups=C.NON_ROBOT_GROUPS)
+            robot_depth = self._active_renderer().render_depth(self.data, self._camera_id,
+                                                               hidden_groups=C.NON_ROBOT_GROUPS)
             robot_pixels = robot_pixel_mask(depth, robot_depth, SELF_FILTER_TOLERANCE)
         return build_point_cloud(
             rgb, depth, self._K, self.camera_pose(), s.n_points, frame=s.point_frame,
