@@ -70,7 +70,7 @@ def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path, folder):
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy
 
     checkpoint = SHIPPED_CHECKPOINT.parent / folder
-    task = folder.partition("_")[2].removesuffix("_sf")
+    task = method_and_task(checkpoint)[1]
     cloud = env_kwargs_for_policy(str(checkpoint))
     cloud_flags = [f"--env.n_points={cloud['n_points']}",
                    f"--env.self_filter={str(cloud['self_filter']).lower()}"]
