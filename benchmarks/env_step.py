@@ -42,25 +42,19 @@ def measure(task: str, n_points: int, height: int, width: int, repeats: int) -> 
         if terminated or truncated:
             break
 
+    def seconds_per_action(e: BavoEnv, advance) -> float:
+        """Replay the expert's actions from the seed-0 reset through `advance`; mean seconds per action."""
+        e.reset(seed=0)
+        t0 = time.perf_counter()
+        for a in actions:
+            advance(a)
+        return (time.perf_counter() - t0) / len(actions)
+
     best = {"physics": float("inf"), "full": float("inf"), "render": float("inf"), "filtered": float("inf")}
     for _ in range(repeats):  # interleave the four measurements; keep the best of each
-        env.reset(seed=0)
-        t0 = time.perf_counter()
-        for a in actions:
-            env.simulate(a)
-        best["physics"] = min(best["physics"], (time.perf_counter() - t0) / len(actions))
-
-        env.reset(seed=0)
-        t0 = time.perf_counter()
-        for a in actions:
-            env.step(a)
-        best["full"] = min(best["full"], (time.perf_counter() - t0) / len(actions))
-
-        filtered.reset(seed=0)
-        t0 = time.perf_counter()
-        for a in actions:
-            filtered.step(a)
-        best["filtered"] = min(best["filtered"], (time.perf_counter() - t0) / len(actions))
+        best["physics"] = min(best["physics"], seconds_per_action(env, env.simulate))
+        best["full"] = min(best["full"], seconds_per_action(env, env.step))
+        best["filtered"] = min(best["filtered"], seconds_per_action(filtered, filtered.step))
 
         t0 = time.perf_counter()
         for _ in range(len(actions) // 4):
