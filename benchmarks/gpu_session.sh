@@ -28,7 +28,7 @@ part() {  # part NAME SECONDS CMD...: run CMD with a time limit, output to $OUT/
 }
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$OUT/gpu.txt"
 python -c 'import torch; print("torch", torch.__version__, "cuda", torch.version.cuda)' | tee -a "$OUT/gpu.txt"
-nproc | tee -a "$OUT/gpu.txt"
+python -c "import os; print('cores', os.cpu_count())" | tee -a "$OUT/gpu.txt"  # nproc would print OMP_NUM_THREADS
 
 DATA=$(mktemp -d /tmp/gpu_bench.XXXXXX)/gpu_bench  # fresh each run (a machine may be reused)
 part collect 90 bash -c "bavo-collect --task cube_handoff --condition stage --episodes 2 --repo-id local/gpu_bench \
@@ -43,7 +43,7 @@ part tp_paper_b512_amp_host_gather 100 env BAVO_DEVICE_BATCHES=0 "${TP[@]}" --pr
 part tp_cpu_fast_b512_host_gather 60 env BAVO_DEVICE_BATCHES=0 "${TP[@]}" --preset cpu_fast --batch 512
 part scale_workers 170 python benchmarks/scale_workers.py --workers 2,16 --episodes ${SCALE_EPISODES:-40} --job both \
     --json "$OUT/scale_workers.json"
-part tp_paper_b512_amp_compile 150 "${TP[@]}" --preset paper --batch 512 --use-amp \
+part tp_paper_b512_amp_compile 300 "${TP[@]}" --preset paper --batch 512 --use-amp \
     --new-policy-arg compile=true
 part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
     --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
