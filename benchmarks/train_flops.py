@@ -3,6 +3,10 @@ teacher's pass), counted by torch.utils.flop_counter on the CPU with a synthetic
 xyz+rgb points, 21-dim state and action, 3-dim teacher features). Counts what a GPU must compute whatever its
 speed; elementwise operations are not counted.
 
+`--ops` also counts the ATen operations one whole training step dispatches (forward, backward, the fused AdamW
+step, the EMA update), by phase: on a GPU each is a kernel launch or a metadata operation paid on the host, so
+the count is what bounds a step whose GPU waits for the host (docs/gpu.md).
+
 Run it for the code on the path; for an older commit put that commit's `lerobot_bavo/` first on the path:
     python benchmarks/train_flops.py --preset paper
     mkdir -p /tmp/base && git archive 729528a lerobot_bavo | tar -x -C /tmp/base
@@ -24,6 +28,8 @@ def main() -> None:
     p.add_argument("--policy", default="afar", choices=["afar", "maniflow"])
     p.add_argument("--preset", default="paper")
     p.add_argument("--batch", type=int, default=8, help="samples counted (FLOPs are reported per sample)")
+    p.add_argument("--ops", action="store_true",
+                   help="also count the ATen operations of one whole step (the second), by phase")
     args = p.parse_args()
 
     import torch
@@ -59,6 +65,49 @@ def main() -> None:
         f"{counter.get_total_flops() / b / 1e9:.3g} GFLOP per training sample (forward + backward + EMA "
         "teacher)"
     )
+    if args.ops:
+        print_operation_counts(policy, batch)
+
+
+def print_operation_counts(policy, batch: dict) -> None:
+    """ATen operations dispatched by the second of two whole training steps (the first builds caches), by
+    phase, and the most frequent ones."""
+    import collections
+
+    import torch
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    class CountOperations(TorchDispatchMode):
+        def __init__(self):
+            super().__init__()
+            self.counts: collections.Counter = collections.Counter()
+            self.phase = ""
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            self.counts[self.phase, func.overloadpacket.__name__] += 1
+            return func(*args, **(kwargs or {}))
+
+    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=1e-4, fused=True)
+    for _ in range(2):
+        policy.zero_grad(set_to_none=True)
+        counter = CountOperations()
+        with counter:
+            counter.phase = "forward"
+            loss, _ = policy.forward(batch)
+            counter.phase = "backward"
+            loss.backward()
+            counter.phase = "optimizer"
+            optimizer.step()
+            counter.phase = "ema"
+            if hasattr(policy, "update"):
+                policy.update()
+    phases = collections.Counter()
+    for (phase, _), n in counter.counts.items():
+        phases[phase] += n
+    print(f"ATen operations per training step: {sum(phases.values())} ("
+          + ", ".join(f"{phase} {n}" for phase, n in phases.items()) + ")")
+    top = counter.counts.most_common(12)
+    print("most frequent: " + ", ".join(f"{phase}/{name} {n}" for (phase, name), n in top))
 
 
 if __name__ == "__main__":
