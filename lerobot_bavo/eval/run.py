@@ -202,14 +202,18 @@ def append_record(log, record: dict) -> None:
 
 
 
-def _make_pool(executor: str, workers: int, jobs: list, ray_address: str | None):
+def _make_pool(executor: str, workers: int, jobs: list, ray_address: str | None, scripted: bool = False):
     """The pool episodes run in: local processes (in-process for one worker), or Ray tasks (`RayPool`; Ray is
-    imported only here). Both give `imap(fn, jobs)`; Ray's results come in completion order."""
+    imported only here). Both give `imap(fn, jobs)`; Ray's results come in completion order.
+
+    `scripted`: the policy is a scripted expert, so the local workers skip importing LeRobot and PyTorch to
+    register the policy types (~3 s of CPU per worker on the 2-core machine, more when 16 start at once: the
+    bulk of an expert evaluation's start-up; docs/results/costs.md)."""
     if executor == "ray" and jobs:
         from lerobot_bavo.runtime.ray_pool import RayPool
 
         return RayPool(workers, address=ray_address)
-    return WorkerPool(workers if workers > 1 and jobs else 0, start_method=None)
+    return WorkerPool(workers if workers > 1 and jobs else 0, start_method=None, light_import=scripted)
 
 
 def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int, seed: int,
@@ -325,6 +329,8 @@ def _evaluate_locked(
     executor="local",
     ray_address=None,
 ) -> dict:
+    from lerobot_bavo.eval.rollout import EXPERT_POLICIES
+
     log_path = output_dir / "episodes.jsonl"
     settings_path = output_dir / "run.json"
     if settings_path.exists():
@@ -379,7 +385,7 @@ def _evaluate_locked(
 
     with (open(log_path, "ab", buffering=0) as log,
           tqdm(total=len(jobs), desc="episodes", unit="ep") as bar,
-          _make_pool(executor, workers, jobs, ray_address) as pool):
+          _make_pool(executor, workers, jobs, ray_address, scripted=policy_id in EXPERT_POLICIES) as pool):
         # completion order: each record is logged (and so kept for a resume) as soon as its episode ends
         for record in pool.imap_unordered(run_job, jobs):
             done[(record["task"], record["condition"], record["seed"])] = record
