@@ -112,12 +112,14 @@ def test_unknown_task_or_condition(tmp_path):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
-@pytest.mark.parametrize("policy, light", [("expert", True), ("expert-frozen-camera", True),
-                                           (str(REPO / "checkpoints/afar_cube_handoff_sf"), False)])
+@pytest.mark.parametrize("policy, light", [
+    ("expert", True), ("expert-frozen-camera", True),
+    (str(REPO / "checkpoints/afar_cube_handoff_sf"), False)])
 def test_worker_pool_skips_lerobot_for_scripted_experts(tmp_path, monkeypatch, policy, light):
     """Scripted experts need neither LeRobot nor PyTorch in the episode workers: their pool is made with
     `light_import=True` (worker start-up ~4.5 -> ~0.4 s of CPU on the 2-core machine); a checkpoint's pool
-    registers LeRobot's policy types in every worker. The pool is stopped at its creation (no episode runs)."""
+    registers LeRobot's policy types in every worker. The pool is stopped at its creation (no episode
+    runs)."""
     import lerobot_bavo.eval.run as run
 
     made = []
@@ -131,5 +133,6 @@ def test_worker_pool_skips_lerobot_for_scripted_experts(tmp_path, monkeypatch, p
 
     monkeypatch.setattr(run, "WorkerPool", spy_pool)
     with pytest.raises(PoolMade):
-        evaluate(policy, [TASK], ["clean"], episodes=2, seed=0, output_dir=tmp_path / "out", workers=2, videos=0)
+        evaluate(policy, [TASK], ["clean"], episodes=2, seed=0, output_dir=tmp_path / "out", workers=2,
+                 videos=0)
     assert made == [(2, light)]
