@@ -308,3 +308,26 @@ def test_a_batch_gathered_on_cuda_equals_lerobots_items_collated_on_an_episode_s
     rows = [0, 1, 7, STEPS - 2, STEPS - 1, 3]
     _assert_same_batch(default_collate([ref[i] for i in rows]), fast.reader.get_batch(rows, "cuda"),
                        "episode 1 CUDA batch")
+
+
+def test_column_array_reads_fixed_and_variable_size_lists_alike():
+    """LeRobot's `merge_datasets` writes list columns as variable-size `list<float>`: they read as the same
+    array as the fixed-size lists of a collection (slices included); lists of different
+    lengths are refused."""
+    import numpy as np
+    import pyarrow as pa
+
+    from lerobot_bavo.datasets.fast import column_array
+
+    rows = np.arange(12, dtype=np.float32).reshape(4, 3)
+    fixed = pa.array(rows.tolist(), type=pa.list_(pa.float32(), 3))
+    variable = pa.array(rows.tolist(), type=pa.list_(pa.float32()))
+    np.testing.assert_array_equal(column_array(fixed), rows)
+    np.testing.assert_array_equal(column_array(variable), rows)
+    chunked = pa.chunked_array([variable.slice(0, 1), variable.slice(1)])
+    np.testing.assert_array_equal(column_array(chunked), rows)
+    np.testing.assert_array_equal(column_array(variable.slice(2)), rows[2:])
+    nested = pa.array([[[1.0, 2.0]], [[3.0, 4.0]]], type=pa.list_(pa.list_(pa.float64())))
+    np.testing.assert_array_equal(column_array(nested), [[[1.0, 2.0]], [[3.0, 4.0]]])
+    with pytest.raises(ValueError, match="differ in length"):
+        column_array(pa.array([[1.0], [2.0, 3.0]], type=pa.list_(pa.float32())))

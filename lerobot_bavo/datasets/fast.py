@@ -67,14 +67,28 @@ CPU = torch.device("cpu")
 
 
 def column_array(column: pa.ChunkedArray) -> np.ndarray:
-    """An Arrow column of scalars or fixed-size lists -> one contiguous array (rows, ...), in memory."""
+    """An Arrow column of scalars or lists -> one contiguous array (rows, ...), in memory.
+
+    Lists are fixed-size in the files LeRobot and `bavo-collect` write; LeRobot's `merge_datasets` writes
+    variable-size ones (`list<float>`), read here when every row has the same length."""
     arr = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
     shape = [len(arr)]
-    while pa.types.is_fixed_size_list(arr.type):
-        shape.append(arr.type.list_size)
-        if arr.offset or arr.null_count:  # slices/nulls: go through Python values, still exact
-            return np.array(arr.to_pylist())
-        arr = arr.values
+    while True:
+        if pa.types.is_fixed_size_list(arr.type):
+            shape.append(arr.type.list_size)
+            if arr.offset or arr.null_count:  # slices/nulls: go through Python values, still exact
+                return np.array(arr.to_pylist())
+            arr = arr.values
+        elif pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type):
+            if arr.null_count:
+                raise ValueError("column has nulls")
+            lengths = np.unique(arr.value_lengths().to_numpy(zero_copy_only=False))
+            if len(lengths) > 1:
+                raise ValueError(f"column's lists differ in length ({lengths.tolist()}): not an array")
+            shape.append(int(lengths[0]) if len(lengths) else 0)
+            arr = arr.flatten()  # the rows' values, offsets and slices applied
+        else:
+            break
     if arr.null_count:
         raise ValueError("column has nulls")
     # A copy: the table is memory-mapped from the parquet cache, whose pages would otherwise be faulted in
