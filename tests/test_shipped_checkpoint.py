@@ -142,7 +142,7 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 
 # data variants beside the recipe (docs/training.md): 50 (100) Stage + 50 (100) Random-time demonstrations;
 # self-filtered clouds (sf)
-DATA_VARIANTS = ("mixsr", "mixsr200", "sf")
+DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "sf")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
