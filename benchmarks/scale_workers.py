@@ -82,9 +82,10 @@ def reap_all() -> None:
             return
 
 
-def children_cpu() -> float:
+def children_cpu() -> tuple[float, float]:
+    """User and kernel CPU seconds of all reaped descendants."""
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
+    return r.ru_utime, r.ru_stime
 
 
 def command_argv(job: str, args, workers: int, out: Path) -> list[str]:
@@ -112,7 +113,9 @@ def run_once(job: str, args, workers: int, tmp: Path) -> dict:
                           text=True)
     wall = time.perf_counter() - t0
     reap_all()
-    total = children_cpu() - before
+    after = children_cpu()
+    kernel = after[1] - before[1]
+    total = after[0] - before[0] + kernel
     if proc.returncode != 0 or not stats.exists():
         raise SystemExit(
             f"{job} with {workers} workers failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
@@ -123,7 +126,7 @@ def run_once(job: str, args, workers: int, tmp: Path) -> dict:
     return {"job": job, "workers": workers, "episodes": args.episodes, "wall_s": round(wall, 2),
             "coordinator_cpu_s": round(own["self_cpu_s"], 2), "total_cpu_s": round(total, 2),
             "coordinator_share": round(share, 4), "cpu_s_per_episode": round(total / args.episodes, 3),
-            **per_episode}
+            "kernel_cpu_share": round(kernel / total, 4) if total > 0 else float("nan"), **per_episode}
 
 
 def writer_costs(root: Path) -> dict:
@@ -181,7 +184,8 @@ def main() -> None:
                 print(f"{'':6}{w:8d} {row['wall_s']:8.1f} {row['speedup']:9.2f} "
                       f"{row['coordinator_cpu_s']:12.1f} "
                       f"{row['total_cpu_s']:10.1f} {row['cpu_s_per_episode']:9.2f} {100 * s:11.1f} % "
-                      f"{row['amdahl_n']:10.2f} {row['amdahl_16']:11.2f}", flush=True)
+                      f"{row['amdahl_n']:10.2f} {row['amdahl_16']:11.2f}   (kernel time "
+                      f"{100 * row['kernel_cpu_share']:.0f} % of all CPU)", flush=True)
                 if "writer_cpu_s_per_episode" in row:
                     print(f"{'':14}per episode: writer {row['writer_cpu_s_per_episode']:.2f} s CPU, worker "
                           f"{row['worker_cpu_s_per_episode']:.2f} s CPU -> one writer keeps up with "
