@@ -51,8 +51,15 @@ def exit_with_parent(parent: int | None = None, poll_s: float = POLL_S) -> None:
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
+GL_WAIT_POLICY = ("__GL_YIELD", "USLEEP")  # NVIDIA's driver: sleep, not spin, while waiting for the GPU
+
+
 def limit_threads() -> None:
     """One BLAS / OpenMP / torch thread per worker process (2-core machines) and headless GL.
+
+    On NVIDIA's EGL a process that waits for a frame spins on its core by default; with 16 workers sharing
+    one GPU that spinning cost a third more CPU per expert episode (docs/results/costs.md). GL_WAIT_POLICY
+    makes them sleep instead, unless the variable is already set (other drivers ignore it).
 
     PyTorch is not imported for this: an expert episode never needs it, and a fresh Ray worker would pay
     seconds for the import. If torch is already loaded (a forked local-pool worker inherits it) its
@@ -61,6 +68,7 @@ def limit_threads() -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault(*GL_WAIT_POLICY)
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(1)

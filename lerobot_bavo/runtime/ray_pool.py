@@ -34,6 +34,8 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+from lerobot_bavo.runtime.process import GL_WAIT_POLICY
+
 MAX_RETRIES = 3
 # Ray's config: the nice value of its worker processes (default 15)
 WORKER_NICENESS_VAR = "RAY_worker_niceness"
@@ -65,6 +67,7 @@ def worker_env_vars() -> dict[str, str]:
     return {"OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1"),
             "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
             "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+            GL_WAIT_POLICY[0]: os.environ.get(*GL_WAIT_POLICY),
             "PYTHONPATH": os.pathsep.join(path)}
 
 
