@@ -8,7 +8,8 @@
 #   2. issue 28: training step throughput, old (.device/baseline) vs new code, side by side, with GPU busy and
 #      the batch fetch alone; the new code gathers its batches on the GPU (num_workers=0), and the *_host_gather
 #      parts time it with BAVO_DEVICE_BATCHES=0 (gathered on the host, as before device-resident batches);
-#   3. issue 30: `bavo-collect` / `bavo-eval` scaling from 2 to 16 workers on the 16-core machine;
+#   3. issue 30: `bavo-collect` / `bavo-eval` scaling from 2 to 16 workers on the 16-core machine, and the cost
+#      of one frame with 2 and 16 processes rendering at once (render_contention);
 #   4. issue 28: the paper preset's step with --policy.compile=true (new code only), then `lerobot-train` on
 #      CUDA with LeRobot's default loader workers, a few steps, and with --num_workers=0 (device batches).
 set -uo pipefail
@@ -43,6 +44,8 @@ part tp_paper_b512_amp_host_gather 100 env BAVO_DEVICE_BATCHES=0 "${TP[@]}" --pr
 part tp_cpu_fast_b512_host_gather 60 env BAVO_DEVICE_BATCHES=0 "${TP[@]}" --preset cpu_fast --batch 512
 part scale_workers 170 python benchmarks/scale_workers.py --workers 2,16 --episodes ${SCALE_EPISODES:-40} --job both \
     --json "$OUT/scale_workers.json"
+# issue 30: is one frame slower when 16 processes render on the GPU at once? (docs/results/costs.md)
+part render_contention 150 python benchmarks/render_contention.py --procs 2,16
 part tp_paper_b512_amp_compile 300 "${TP[@]}" --preset paper --batch 512 --use-amp \
     --new-policy-arg compile=true
 part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
