@@ -229,13 +229,13 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                      "docs/results/self_filter.md)" if self_filter else ""))
     env_flags = (f" --env.n_points={n_points}" if n_points != 256 else "") + (
         " --env.self_filter=true" if self_filter else "")
-    if (data or {}).get("self_filter"):
+    if mixed:  # a joined view (self-filtered or not): its own collection, join and training commands
+        how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
+               "recipe\"")
+    elif (data or {}).get("self_filter"):
         how = (f"`TASK={task} DATA=dartsf512 scripts/train_task.sh {pol['type']}` with the recipe's other "
                "variables, after the self-filtered collection: docs/results/self_filter.md gives every "
                "command")
-    elif mixed:
-        how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
-               "recipe\"")
     else:
         how = (f"`TASK={task} scripts/train_task.sh {pol['type']}` with the matching environment variables; "
                f"`TASK={task} bash scripts/train_task.sh recipe {pol['type']}` runs data, training, shipping "

@@ -47,3 +47,17 @@ def test_a_run_across_midnight():
     log = (_line("26 23:58:00", "Start offline training")
            + _line("27 00:02:30", "Checkpoint policy after step 500"))
     assert training_wall_min(log, 500) == pytest.approx(4.5)
+
+
+def test_the_cards_of_joined_data_variants_point_to_the_variant_commands():
+    """A checkpoint trained on a joined view (`scripts/mix_views.py`) names where the variant's commands are,
+    not the recipe's single-collection command (self-filtered variants' cards once named DATA=dartsf512)."""
+    from pathlib import Path
+
+    cards = sorted(Path(__file__).resolve().parents[1].glob("checkpoints/*/README.md"))
+    joined = [c for c in cards if "`scripts/mix_views.py` joined" in c.read_text()]
+    assert joined, "no shipped checkpoint of a joined data variant"
+    for card_file in joined:
+        text = card_file.read_text()
+        assert "Variants and baselines beside the recipe" in text, card_file
+        assert "DATA=dartsf512" not in text, card_file
