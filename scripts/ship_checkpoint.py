@@ -232,7 +232,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
     if mixed:  # a joined view (self-filtered or not): its own collection, join and training commands
         how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
                "recipe\"")
-    elif (data or {}).get("self_filter"):
+    elif self_filter:
         how = (f"`TASK={task} DATA=dartsf512 scripts/train_task.sh {pol['type']}` with the recipe's other "
                "variables, after the self-filtered collection: docs/results/self_filter.md gives every "
                "command")
