@@ -75,6 +75,89 @@ def run_offline(cmd: list[str], tmp_path):
     return proc
 
 
+class OutputLines:
+    """The stdout lines of a running process (text mode), read by a background thread so that a test never
+    blocks on them for ever: `for line in proc.stdout` holds the whole test run if a server CLI hangs before
+    printing its address. Start the process with `PYTHONFAULTHANDLER=1` so that the SIGABRT sent on a
+    deadline prints every thread's stack into the failure message."""
+
+    def __init__(self, proc):
+        import queue
+        import threading
+
+        self.proc = proc
+        self.lines: list[str] = []
+        self._q: queue.Queue = queue.Queue()
+        self._ended = False
+        threading.Thread(target=self._pump, name="output-lines", daemon=True).start()
+
+    def _pump(self):
+        for line in self.proc.stdout:
+            self._q.put(line)
+        self._q.put(None)
+
+    def _next(self, deadline: float) -> str | None:
+        import time
+
+        line = self._q.get(timeout=max(0.0, deadline - time.monotonic()))
+        if line is None:
+            self._ended = True
+        else:
+            self.lines.append(line)
+        return line
+
+    def _fail(self, what: str):
+        """Abort the process (stacks printed), collect the rest of its output, fail naming `what`."""
+        import queue
+        import signal
+        import time
+
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGABRT)
+            try:
+                self.proc.wait(30)
+            except Exception:  # noqa: BLE001 - the failure below is what matters
+                self.proc.kill()
+        try:
+            while not self._ended and self._next(time.monotonic() + 10) is not None:
+                pass
+        except queue.Empty:
+            pass
+        raise AssertionError(f"{what}; the process's output (stacks if it hung):\n" + "".join(self.lines))
+
+    def wait_for(self, pattern: str, timeout: float = 300.0):
+        """The match of the first line (from here on) matching the regex `pattern`; fails after `timeout`
+        seconds or when the process ends first."""
+        import queue
+        import re
+        import time
+
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                line = None if self._ended else self._next(deadline)
+            except queue.Empty:
+                self._fail(f"no line matching {pattern!r} within {timeout:.0f} s")
+            if line is None:  # its stdout closed: it is exiting
+                self._fail(f"the process ended ({self.proc.wait(30)}) before printing {pattern!r}")
+            if m := re.search(pattern, line):
+                return m
+
+    def rest(self, timeout: float = 120.0) -> str:
+        """Everything printed after the last line read, up to the end of the output (the process exits)."""
+        import queue
+        import time
+
+        n = len(self.lines)
+        deadline = time.monotonic() + timeout
+        try:
+            while not self._ended and self._next(deadline) is not None:
+                pass
+        except queue.Empty:
+            self._fail(f"the output did not end within {timeout:.0f} s")
+        return "".join(self.lines[n:])
+
+
 def tiny_points_view(root, repo_id: str, settings):
     """A 2-episode, 40-step Stage dataset of Cube Handoff at `root` (seeds 0, 1, kept even if they fail) and
     its `points` training view; returns the view's folder (`<root>_points`, repo id `<repo_id>_points`)."""

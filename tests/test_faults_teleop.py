@@ -26,6 +26,7 @@ import urllib.request
 
 import numpy as np
 import pytest
+from _helpers import OutputLines
 
 from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.teleop.access import AccessPolicy, split_host
@@ -617,6 +618,20 @@ def test_a_failing_tick_or_save_keeps_the_thread_and_the_episode(live, monkeypat
 
 
 # ============================================================================ the CLI
+# The address line of `bavo-teleop`. The token ends where the URL does: a `\b` there never matched a token
+# ending in "-" (1 run in 64), and the test then read the serving process's output for ever (CI timed out).
+SERVING_LINE = r"serving (http://127\.0\.0\.1:\d+)/\?token=([\w-]{32})(?![\w-])"
+
+
+def test_the_serving_line_pattern_takes_every_token_whole():
+    from lerobot_bavo.teleop.access import new_token
+
+    for token in [new_token() for _ in range(200)] + ["a" * 31 + "-", "-" * 32, "_" * 32]:
+        line = f"bavo-teleop: serving http://127.0.0.1:8765/?token={token} (dataset /tmp/x); Ctrl+C stops"
+        m = re.search(SERVING_LINE, line)
+        assert m and m.group(2) == token, token
+
+
 def test_cli_prints_the_address_with_its_token_and_refuses_requests_without_it(tmp_path):
     """`bavo-teleop` prints http://127.0.0.1:<port>/?token=<token>; that address serves the page, the
     same address without the token (or with another run's) gets 403 with the reason."""
@@ -645,16 +660,11 @@ def test_cli_prints_the_address_with_its_token_and_refuses_requests_without_it(t
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
-        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        env=dict(os.environ, PYTHONUNBUFFERED="1", PYTHONFAULTHANDLER="1"),
     )
-    lines = []
+    output = OutputLines(proc)
     try:
-        for line in proc.stdout:
-            lines.append(line)
-            m = re.search(r"serving (http://127\.0\.0\.1:\d+)/\?token=([\w-]{32})\b", line)
-            if m:
-                break
-        assert m, "".join(lines)
+        m = output.wait_for(SERVING_LINE)
         base, token = m.groups()
         with urllib.request.urlopen(f"{base}/?token={token}", timeout=30) as r:
             assert r.status == 200 and b"bavo-teleop" in r.read()
@@ -664,6 +674,6 @@ def test_cli_prints_the_address_with_its_token_and_refuses_requests_without_it(t
             assert e.value.code == 403 and reason in e.value.read()
     finally:
         proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 0, "".join(lines) + out
+        out = output.rest(timeout=120)
+    assert proc.wait(30) == 0, "".join(output.lines)
     assert "refused GET / from 127.0.0.1: no token" in out

@@ -7,7 +7,6 @@ Small settings throughout (48 x 64 images, 32 points, short episodes) so the sui
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _helpers import OutputLines
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.features import ObservationSettings
@@ -324,21 +324,17 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
 
-def start_server(root: Path, *extra: str) -> tuple[subprocess.Popen, str]:
+def start_server(root: Path, *extra: str) -> tuple[subprocess.Popen, str, OutputLines]:
     """`python -m lerobot_bavo.teleop` on 127.0.0.1 and a free port; returns (process, url with the run's
-    token)."""
-    env = dict(os.environ, SVT_LOG="1", PYTHONUNBUFFERED="1")
+    token, its output so far and to come)."""
+    env = dict(os.environ, SVT_LOG="1", PYTHONUNBUFFERED="1", PYTHONFAULTHANDLER="1")
     proc = subprocess.Popen(
         [sys.executable, "-m", "lerobot_bavo.teleop", "--task", "cube_handoff", "--condition", "stage",
          "--repo-id", REPO, "--root", str(root), "--host", "127.0.0.1", "--port", "0", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    lines = []
-    for line in proc.stdout:
-        lines.append(line)
-        m = re.search(r"serving (http://127\.0\.0\.1:\d+/\?token=[\w-]+)", line)
-        if m:
-            return proc, m.group(1)
-    raise RuntimeError("bavo-teleop did not start:\n" + "".join(lines))
+    output = OutputLines(proc)
+    m = output.wait_for(r"serving (http://127\.0\.0\.1:\d+/\?token=[\w-]+)")
+    return proc, m.group(1), output
 
 
 def open_page(playwright, url: str, profile: Path):
@@ -370,7 +366,7 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
     from lerobot_bavo.teleop.session import replay_log
 
     root = tmp_path / "human"
-    proc, url = start_server(root, "--image-height", "48", "--image-width", "64", "--n-points", "32",
+    proc, url, output = start_server(root, "--image-height", "48", "--image-width", "64", "--n-points", "32",
                              "--episode-length", "60", "--third-person-height", "120", "--seed", "3")
     try:
         with playwright_api.sync_playwright() as p:
@@ -417,8 +413,8 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
                 ctx.close()
     finally:
         proc.send_signal(signal.SIGINT)  # interrupting the server keeps the saved episode
-        out, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 0, out
+        out = "".join(output.lines) + output.rest(timeout=120)
+    assert proc.wait(30) == 0, out
     ds = load_bavo_dataset(REPO, root=root)
     assert ds.num_episodes == 1 and len(ds) == 60 and set(S.TEACHER_KEYS) <= set(ds.meta.features)
     assert int(ds.hf_dataset[0][S.ANN_SOURCE]) == 1 and read_sidecar(root)["complete"]
@@ -476,7 +472,7 @@ def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
     playwright_api = pytest.importorskip(
         "playwright.sync_api", reason="needs playwright (pip install playwright)"
     )
-    proc, url = start_server(
+    proc, url, output = start_server(
         tmp_path / "human",
         "--image-height",
         "48",
@@ -542,4 +538,5 @@ def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
                 ctx.close()
     finally:
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=120)
+        output.rest(timeout=120)
+        proc.wait(30)
