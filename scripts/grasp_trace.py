@@ -11,7 +11,8 @@ sent. The expert's numbers are the reference for a grasp that works.
     python scripts/grasp_trace.py --task block_stacking --policy checkpoints/afar_block_stacking \
         [--condition clean] [--seeds 1000-1003]
 
-Seeds default to the validation seeds (1000+); test seeds (2000+) are for reporting only.
+Seeds default to the validation seeds (1000+); test seeds (2000+) are for reporting only. `--grasp ARM:BODY`
+traces another grasp than the task's first, e.g. Block Stacking's second (`--grasp left:top_block`).
 """
 
 from __future__ import annotations
@@ -71,9 +72,15 @@ def main() -> None:
     ap.add_argument("--condition", default="clean")
     ap.add_argument("--seeds", default="1000-1003", help="first-last (inclusive)")
     ap.add_argument("--closed", type=float, default=0.5, help="a gripper command below this is 'closing'")
+    ap.add_argument("--grasp", default=None, metavar="ARM:BODY",
+                    help="gripper (left|right) and object body to trace (default: the task's first grasp)")
     args = ap.parse_args()
     first, last = (int(s) for s in args.seeds.split("-"))
     side, body = FIRST_GRASP[args.task]
+    if args.grasp is not None:
+        side, _, body = args.grasp.partition(":")
+        if side not in ("left", "right") or not body:
+            ap.error(f"--grasp must be left:BODY or right:BODY, not {args.grasp!r}")
     env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
     agent = make_agent(args.policy, env)
     rows = [trace_episode(env, agent, seed, side, body, args.closed) for seed in range(first, last + 1)]
