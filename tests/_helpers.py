@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
+import queue
+import re
+import signal
+import threading
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
@@ -82,9 +88,6 @@ class OutputLines:
     deadline prints every thread's stack into the failure message."""
 
     def __init__(self, proc):
-        import queue
-        import threading
-
         self.proc = proc
         self.lines: list[str] = []
         self._q: queue.Queue = queue.Queue()
@@ -97,8 +100,9 @@ class OutputLines:
         self._q.put(None)
 
     def _next(self, deadline: float) -> str | None:
-        import time
-
+        """The next line, or None once the output has ended; queue.Empty past `deadline` (monotonic s)."""
+        if self._ended:
+            return None
         line = self._q.get(timeout=max(0.0, deadline - time.monotonic()))
         if line is None:
             self._ended = True
@@ -106,36 +110,30 @@ class OutputLines:
             self.lines.append(line)
         return line
 
+    def _drain(self, deadline: float) -> None:
+        """Read up to the end of the output; queue.Empty past `deadline`."""
+        while self._next(deadline) is not None:
+            pass
+
     def _fail(self, what: str):
         """Abort the process (stacks printed), collect the rest of its output, fail naming `what`."""
-        import queue
-        import signal
-        import time
-
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGABRT)
             try:
                 self.proc.wait(30)
             except Exception:  # noqa: BLE001 - the failure below is what matters
                 self.proc.kill()
-        try:
-            while not self._ended and self._next(time.monotonic() + 10) is not None:
-                pass
-        except queue.Empty:
-            pass
+        with contextlib.suppress(queue.Empty):  # what came within 10 s is enough for the message
+            self._drain(time.monotonic() + 10)
         raise AssertionError(f"{what}; the process's output (stacks if it hung):\n" + "".join(self.lines))
 
     def wait_for(self, pattern: str, timeout: float = 300.0):
         """The match of the first line (from here on) matching the regex `pattern`; fails after `timeout`
         seconds or when the process ends first."""
-        import queue
-        import re
-        import time
-
         deadline = time.monotonic() + timeout
         while True:
             try:
-                line = None if self._ended else self._next(deadline)
+                line = self._next(deadline)
             except queue.Empty:
                 self._fail(f"no line matching {pattern!r} within {timeout:.0f} s")
             if line is None:  # its stdout closed: it is exiting
@@ -145,14 +143,9 @@ class OutputLines:
 
     def rest(self, timeout: float = 120.0) -> str:
         """Everything printed after the last line read, up to the end of the output (the process exits)."""
-        import queue
-        import time
-
         n = len(self.lines)
-        deadline = time.monotonic() + timeout
         try:
-            while not self._ended and self._next(deadline) is not None:
-                pass
+            self._drain(time.monotonic() + timeout)
         except queue.Empty:
             self._fail(f"the output did not end within {timeout:.0f} s")
         return "".join(self.lines[n:])

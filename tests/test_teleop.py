@@ -413,7 +413,8 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
                 ctx.close()
     finally:
         proc.send_signal(signal.SIGINT)  # interrupting the server keeps the saved episode
-        out = "".join(output.lines) + output.rest(timeout=120)
+        output.rest(timeout=120)
+        out = "".join(output.lines)
     assert proc.wait(30) == 0, out
     ds = load_bavo_dataset(REPO, root=root)
     assert ds.num_episodes == 1 and len(ds) == 60 and set(S.TEACHER_KEYS) <= set(ds.meta.features)
