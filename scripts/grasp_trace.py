@@ -20,20 +20,32 @@ from __future__ import annotations
 import argparse
 import json
 
+import mujoco
 import numpy as np
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
 from lerobot_bavo.sim import constants as C
 
-# The first grasp of each task: (arm, object body).
+# The first grasp of each task, fingers closing on an object: (arm, object body or geom). It makes M1 except
+# on Slide Retrieval, whose M1 is the right gripper pressing the blade with its fingers already closed.
 FIRST_GRASP = {
     "cube_handoff": ("right", "cube"),
     "block_stacking": ("right", "base_block"),
     "drawer_stowing": ("left", "block"),
-    "dustpan_sweeping": ("right", "target_object"),
-    "slide_retrieval": ("right", "spatula"),
+    "dustpan_sweeping": ("left", "dustpan_handle"),
+    "slide_retrieval": ("left", "handle_geom"),
 }
+
+
+def object_position(env, name: str) -> np.ndarray:
+    """World position (m) of a body's frame, or of a geom's centre where `name` is a geom (a handle is
+    one geom of its object's body, and the body's frame can lie a hand's width away from it)."""
+    if mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_BODY, name) >= 0:
+        return env.data.body(name).xpos
+    if mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_GEOM, name) >= 0:
+        return env.data.geom(name).xpos
+    raise SystemExit(f"--grasp: no body or geom named {name!r} in this task's model")
 
 
 def trace_episode(env, agent, seed: int, side: str, body: str, closed: float) -> dict:
@@ -47,7 +59,7 @@ def trace_episode(env, agent, seed: int, side: str, body: str, closed: float) ->
 
     def logging_act(obs, info):
         action = act(obs, info)
-        offset = env.data.site(f"{side}_gripper_center").xpos - env.data.body(body).xpos
+        offset = env.data.site(f"{side}_gripper_center").xpos - object_position(env, body)
         distance = 1000 * float(np.linalg.norm(offset))
         if distance < seen["closest_mm"]:
             seen["closest_mm"], seen["closest_step"] = round(distance, 1), int(info["elapsed_steps"])
@@ -73,7 +85,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="1000-1003", help="first-last (inclusive)")
     ap.add_argument("--closed", type=float, default=0.5, help="a gripper command below this is 'closing'")
     ap.add_argument("--grasp", default=None, metavar="ARM:BODY",
-                    help="gripper (left|right) and object body to trace (default: the task's first grasp)")
+                    help="gripper (left|right) and object body or geom to trace, e.g. left:top_block "
+                    "(default: the task's first grasp)")
     args = ap.parse_args()
     first, last = (int(s) for s in args.seeds.split("-"))
     side, body = FIRST_GRASP[args.task]
@@ -82,6 +95,8 @@ def main() -> None:
         if side not in ("left", "right") or not body:
             ap.error(f"--grasp must be left:BODY or right:BODY, not {args.grasp!r}")
     env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
+    env.reset(seed=first)
+    object_position(env, body)  # a wrong name fails here, before any policy is loaded
     agent = make_agent(args.policy, env)
     rows = [trace_episode(env, agent, seed, side, body, args.closed) for seed in range(first, last + 1)]
     env.close()
