@@ -441,16 +441,20 @@ def test_bad_messages_are_answered_and_the_episode_goes_on(live):
     assert all("xr" not in t and "pad" not in t for t in log)  # nothing of the refused messages was logged
 
 
-def test_an_oversized_message_closes_only_its_own_connection(live):
+def test_an_oversized_message_closes_only_its_own_connection(live, caplog):
     """A message over MAX_MESSAGE_BYTES (the 1 MB keys message of issue 29) closes that websocket with
-    1009 before it is parsed; the server and the other pages go on."""
+    1009 before it is parsed; the server and the other pages go on. The page itself reads 1009, or 1006
+    when the server's close resets its socket while it is still writing the message (seen in CI), so the
+    1009 is checked where it is sent: the server's log."""
     async def scenario():
         async with aiohttp.ClientSession() as http:
             watcher = await Page.open(http, live)
             big = await Page.open(http, live)
             await big.send(json.dumps({"type": "input", "seq": 1, "keys": ["w"] * (1 << 18)}))  # ~1.3 MB
             await asyncio.wait_for(big.task, 30)
-            assert big.ws.close_code == aiohttp.WSCloseCode.MESSAGE_TOO_BIG
+            closed = (aiohttp.WSCloseCode.MESSAGE_TOO_BIG, aiohttp.WSCloseCode.ABNORMAL_CLOSURE)
+            assert big.ws.close_code in closed
+            await until(lambda: "its connection was closed (1009)" in caplog.text, what="the server's 1009")
             assert live.session.input.keys == set()
             assert not watcher.ws.closed
             await until(lambda: watcher.texts, what="the watcher's status")

@@ -41,6 +41,7 @@ from lerobot_bavo.teleop.protocol import MAX_MESSAGE_BYTES, InputMessage, Messag
 
 STATIC = Path(__file__).parent / "static"
 logger = logging.getLogger("bavo-teleop")
+OVERSIZED_CLOSE_CODE = 1009  # RFC 6455 "message too big", which aiohttp sends past max_msg_size
 
 
 def _require_aiohttp():
@@ -196,6 +197,11 @@ class TeleopServer:
         if msg.type == WSMsgType.BINARY:
             error = "binary messages are not accepted (send JSON text)"
         elif msg.type != WSMsgType.TEXT:
+            if msg.type == WSMsgType.ERROR and getattr(msg.data, "code", None) == OVERSIZED_CLOSE_CODE:
+                # aiohttp closes with 1009 past max_msg_size; the page may read 1006 instead, its socket
+                # reset while it is still sending, so the server says what happened
+                logger.warning("a page sent a message over %d bytes: its connection was closed (1009)",
+                               MAX_MESSAGE_BYTES)
             return None  # close / error frames: the loop ends by itself
         else:
             try:
