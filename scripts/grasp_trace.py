@@ -48,7 +48,7 @@ def object_position(env, name: str) -> np.ndarray:
     raise SystemExit(f"--grasp: no body or geom named {name!r} in this task's model")
 
 
-def trace_episode(env, agent, seed: int, side: str, body: str, closed: float) -> dict:
+def trace_episode(env, agent, seed: int, side: str, obj: str, closed: float) -> dict:
     """One episode; the first step the `side` gripper command falls below `closed` and the gripper centre
     minus the object's centre then (world frame, mm); the closest the gripper centre came to the object's
     centre (mm, and when), and the lowest command sent."""
@@ -59,7 +59,7 @@ def trace_episode(env, agent, seed: int, side: str, body: str, closed: float) ->
 
     def logging_act(obs, info):
         action = act(obs, info)
-        offset = env.data.site(f"{side}_gripper_center").xpos - object_position(env, body)
+        offset = env.data.site(f"{side}_gripper_center").xpos - object_position(env, obj)
         distance = 1000 * float(np.linalg.norm(offset))
         if distance < seen["closest_mm"]:
             seen["closest_mm"], seen["closest_step"] = round(distance, 1), int(info["elapsed_steps"])
@@ -89,22 +89,22 @@ def main() -> None:
                     "(default: the task's first grasp)")
     args = ap.parse_args()
     first, last = (int(s) for s in args.seeds.split("-"))
-    side, body = FIRST_GRASP[args.task]
+    side, obj = FIRST_GRASP[args.task]
     if args.grasp is not None:
-        side, _, body = args.grasp.partition(":")
-        if side not in ("left", "right") or not body:
+        side, _, obj = args.grasp.partition(":")
+        if side not in ("left", "right") or not obj:
             ap.error(f"--grasp must be left:BODY or right:BODY, not {args.grasp!r}")
     env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
     env.reset(seed=first)
-    object_position(env, body)  # a wrong name fails here, before any policy is loaded
+    object_position(env, obj)  # a wrong name fails here, before any policy is loaded
     agent = make_agent(args.policy, env)
-    rows = [trace_episode(env, agent, seed, side, body, args.closed) for seed in range(first, last + 1)]
+    rows = [trace_episode(env, agent, seed, side, obj, args.closed) for seed in range(first, last + 1)]
     env.close()
     for row in rows:
         print(json.dumps(row))
     offsets = np.array([r["offset_mm"] for r in rows if r["offset_mm"] is not None])
     if len(offsets):
-        print(f"{args.policy} on {args.task} ({args.condition}), {side} gripper on {body}: closes at steps "
+        print(f"{args.policy} on {args.task} ({args.condition}), {side} gripper on {obj}: closes at steps "
               f"{[r['close_step'] for r in rows]}; offset mean (x, y, z) {offsets.mean(0).round(1).tolist()} "
               f"mm, |offset| {np.linalg.norm(offsets, axis=1).round(0).tolist()} mm; milestones "
               f"{[r['progress'] for r in rows]}")

@@ -41,7 +41,6 @@ from lerobot_bavo.teleop.protocol import MAX_MESSAGE_BYTES, InputMessage, Messag
 
 STATIC = Path(__file__).parent / "static"
 logger = logging.getLogger("bavo-teleop")
-OVERSIZED_CLOSE_CODE = 1009  # RFC 6455 "message too big", which aiohttp sends past max_msg_size
 
 
 def _require_aiohttp():
@@ -192,12 +191,12 @@ class TeleopServer:
 
     def _apply(self, client: _Client, msg) -> str | None:
         """Hand one websocket message to the session once it is known valid; else the error for the page."""
-        from aiohttp import WSMsgType
+        from aiohttp import WSCloseCode, WSMsgType
 
         if msg.type == WSMsgType.BINARY:
             error = "binary messages are not accepted (send JSON text)"
         elif msg.type != WSMsgType.TEXT:
-            if msg.type == WSMsgType.ERROR and getattr(msg.data, "code", None) == OVERSIZED_CLOSE_CODE:
+            if msg.type == WSMsgType.ERROR and getattr(msg.data, "code", None) == WSCloseCode.MESSAGE_TOO_BIG:
                 # aiohttp closes with 1009 past max_msg_size; the page may read 1006 instead, its socket
                 # reset while it is still sending, so the server says what happened
                 logger.warning("a page sent a message over %d bytes: its connection was closed (1009)",
