@@ -761,3 +761,48 @@ def test_sampled_chunks_are_clipped_to_the_normalised_data_range():
     torch.testing.assert_close(a_clip, a_raw.clamp(-1.0, 1.0))
     with pytest.raises(ValueError, match="clip_actions"):
         make_maniflow(normalization_mapping={"VISUAL": "IDENTITY", "STATE": "MIN_MAX", "ACTION": "MEAN_STD"})
+
+
+# ignored_state_dims (issue 27's "state without the camera-arm joints" variant)
+# -----------------------------------------------------------------------------------------------------------
+
+CAMERA_ARM_DIMS = tuple(range(14, 21))
+
+
+@pytest.mark.parametrize("make", [make_maniflow, make_afar], ids=["maniflow", "afar"])
+def test_ignored_state_dims_carry_no_information(make, tmp_path):
+    torch.manual_seed(0)
+    policy = make(ignored_state_dims=CAMERA_ARM_DIMS).eval()
+    randomize_zero_init(policy)
+    batch = synthetic_batch(b=3, teacher=False)
+    noise = torch.randn(3, 16, ACTION_DIM, generator=torch.Generator().manual_seed(1))
+    moved = dict(batch)
+    moved[STATE] = batch[STATE].clone()
+    moved[STATE][..., 14:21] = torch.rand(3, 2, 7) * 2 - 1  # another camera-arm pose
+    reference = policy.generate_actions(batch, noise=noise)
+    torch.testing.assert_close(policy.generate_actions(moved, noise=noise), reference, rtol=0, atol=0)
+    arm = dict(batch)
+    arm[STATE] = batch[STATE].clone()
+    arm[STATE][..., 0] += 0.5  # a manipulator joint is still read
+    assert not torch.equal(policy.generate_actions(arm, noise=noise), reference)
+    # the training loss ignores them too (same sampled noise and times)
+    policy.train()
+    train_batch, train_moved = synthetic_batch(b=3), synthetic_batch(b=3)
+    train_moved[STATE][..., 14:21] = 0.9
+    torch.manual_seed(3)
+    loss, _ = policy.forward(train_batch)
+    torch.manual_seed(3)
+    loss_moved, _ = policy.forward(train_moved)
+    torch.testing.assert_close(loss_moved, loss, rtol=0, atol=0)
+    # the setting travels with a checkpoint
+    policy.eval()
+    policy.save_pretrained(tmp_path)
+    loaded = type(policy).from_pretrained(tmp_path)
+    assert tuple(loaded.config.ignored_state_dims) == CAMERA_ARM_DIMS
+    torch.testing.assert_close(loaded.generate_actions(moved, noise=noise), reference, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("dims", [(21,), (-1,), (3, 3)])
+def test_ignored_state_dims_outside_the_state_or_repeated_are_refused(dims):
+    with pytest.raises(ValueError, match="ignored_state_dims"):
+        make_maniflow(ignored_state_dims=dims)

@@ -130,6 +130,13 @@ class ManiFlowConfig(PreTrainedConfig):
             0 = all N. BAVO clouds are stored in farthest-point-sampling order (`envs/pointcloud.py`), so the
             first M points are exactly the M-point FPS sample of the same view, and the point-aligned teacher
             features are cut the same way. None means from the preset (paper and cpu: 0; cpu_fast: 64).
+        ignored_state_dims: Dimensions of `observation.state` the policy never sees: they are set to 0 (the
+            middle of the MIN_MAX-normalised range) before the state encoder, in training and at inference
+            alike, so the network gets no information from them and its shapes (and checkpoints) stay those
+            of the full state. Why: issue 27's variant "a state without the camera-arm joints"
+            (`--policy.ignored_state_dims=[14,15,16,17,18,19,20]` on BAVO's 21-dim state) asks whether the
+            policy reads the task's phase from where the camera arm is instead of from the cloud. Empty
+            (default): the whole state.
         num_inference_steps: Euler steps from noise (t = 0) to data (t = 1) at inference. Default 10, as
             ManiFlow's released scripts (its paper claims 1-2 steps thanks to the consistency objective).
             Measured on the CPU-scale A-FAR of docs/results/ladder_cube_handoff.md (same checkpoint, Stage, 20
@@ -233,6 +240,7 @@ class ManiFlowConfig(PreTrainedConfig):
     time_freq_dim: int = 128
     time_embed_hidden_dim: int | None = None
     points_per_step: int | None = None
+    ignored_state_dims: tuple[int, ...] = ()
 
     # Inference.
     num_inference_steps: int = 10
@@ -389,6 +397,13 @@ class ManiFlowConfig(PreTrainedConfig):
             )
         if OBS_STATE not in inputs:
             raise ValueError(f"{type(self).__name__} needs '{OBS_STATE}' among the input features.")
+        state_dim = int(math.prod(inputs[OBS_STATE].shape))
+        bad = [d for d in self.ignored_state_dims if not 0 <= d < state_dim]
+        if bad or len(set(self.ignored_state_dims)) != len(self.ignored_state_dims):
+            raise ValueError(
+                f"`ignored_state_dims` {list(self.ignored_state_dims)} must be distinct indices of the "
+                f"{state_dim}-dim '{OBS_STATE}'" + (f"; {bad} are not." if bad else "; some repeat.")
+            )
         if self.output_features and ACTION not in self.output_features:
             raise ValueError(f"{type(self).__name__} needs '{ACTION}' among the output features.")
         if self.output_features:
