@@ -133,10 +133,10 @@ class ManiFlowConfig(PreTrainedConfig):
         ignored_state_dims: Dimensions of `observation.state` the policy never sees: they are set to 0 (the
             middle of the MIN_MAX-normalised range) before the state encoder, in training and at inference
             alike, so the network gets no information from them and its shapes (and checkpoints) stay those
-            of the full state. Why: issue 27's variant "a state without the camera-arm joints"
-            (`--policy.ignored_state_dims=[14,15,16,17,18,19,20]` on BAVO's 21-dim state) asks whether the
-            policy reads the task's phase from where the camera arm is instead of from the cloud. Empty
-            (default): the whole state.
+            of the full state. Why: a state without the camera-arm joints
+            (`--policy.ignored_state_dims=[14,15,16,17,18,19,20]` on BAVO's 21-dim state; docs/training.md)
+            tests whether the policy reads the task's phase from where the camera arm is instead of from
+            the cloud. Empty (default): the whole state.
         num_inference_steps: Euler steps from noise (t = 0) to data (t = 1) at inference. Default 10, as
             ManiFlow's released scripts (its paper claims 1-2 steps thanks to the consistency objective).
             Measured on the CPU-scale A-FAR of docs/results/ladder_cube_handoff.md (same checkpoint, Stage, 20
