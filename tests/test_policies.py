@@ -15,6 +15,7 @@ from lerobot.configs import FeatureType, PolicyFeature, PreTrainedConfig
 
 import lerobot_bavo.policies  # noqa: F401  (registers "maniflow" and "afar")
 from lerobot_bavo.policies import AfarConfig, AfarPolicy, ManiFlowConfig, ManiFlowPolicy
+from lerobot_bavo.sim.constants import CAMERA_ARM
 from lerobot_bavo.teacher.relations import relational_losses, teacher_relations
 
 
@@ -766,7 +767,7 @@ def test_sampled_chunks_are_clipped_to_the_normalised_data_range():
 # ignored_state_dims (issue 27's "state without the camera-arm joints" variant)
 # -----------------------------------------------------------------------------------------------------------
 
-CAMERA_ARM_DIMS = tuple(range(14, 21))
+CAMERA_ARM_DIMS = tuple(range(CAMERA_ARM.start, CAMERA_ARM.stop))  # 14-20
 
 
 @pytest.mark.parametrize("make", [make_maniflow, make_afar], ids=["maniflow", "afar"])

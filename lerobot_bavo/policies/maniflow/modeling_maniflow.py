@@ -543,7 +543,10 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self._ema_step_host: int | None = None
         self.register_load_state_dict_post_hook(_forget_host_ema_step)
         self._queues: dict[str, deque] = {}
-        self._ignored_state_indices: dict[torch.device, Tensor] = {}  # see `_ignored_state_index`
+        # `config.ignored_state_dims` as an index tensor that moves with the policy (no host-to-device copy
+        # inside a step); not saved: the config holds the dims
+        self.register_buffer("ignored_state_index", torch.tensor(config.ignored_state_dims, dtype=torch.long),
+                             persistent=False)
         self.reset()
         if config.compile:
             self._compile(config.compile_mode)
@@ -650,17 +653,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
                 f"{tuple(batch[key].shape)} and {tuple(batch[OBS_STATE].shape)}."
             )
         if self.config.ignored_state_dims:
-            state = state.index_fill(-1, self._ignored_state_index(state.device), 0.0)
+            state = state.index_fill(-1, self.ignored_state_index, 0.0)
         return pc, state
-
-    def _ignored_state_index(self, device: torch.device) -> Tensor:
-        """`config.ignored_state_dims` as an index tensor on `device`, made once per device (no host-to-device
-        copy inside a training step)."""
-        index = self._ignored_state_indices.get(device)
-        if index is None:
-            index = torch.tensor(self.config.ignored_state_dims, dtype=torch.long, device=device)
-            self._ignored_state_indices[device] = index
-        return index
 
     # ---- Inference
     # ------------------------------------------------------------------------------------------
