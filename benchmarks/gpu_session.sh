@@ -48,10 +48,14 @@ part scale_workers 170 python benchmarks/scale_workers.py --workers 2,16 --episo
 part render_contention 150 python benchmarks/render_contention.py --procs 2,16
 part tp_paper_b512_amp_compile 300 "${TP[@]}" --preset paper --batch 512 --use-amp \
     --new-policy-arg compile=true
-# not yet timed on a GPU: CUDA graphs (the GPU-busy target) and the small preset compiled (its samples/s target)
+# CUDA graphs (the GPU-busy target) and the small preset compiled (its samples/s target): timed 2026-11-27
 part tp_paper_b512_amp_compile_graphs 300 "${TP[@]}" --preset paper --batch 512 --use-amp \
     --new-policy-arg compile=true --new-policy-arg compile_mode=reduce-overhead
 part tp_cpu_fast_b512_compile 200 "${TP[@]}" --preset cpu_fast --batch 512 --new-policy-arg compile=true
+part tp_cpu_fast_b512_compile_graphs 200 "${TP[@]}" --preset cpu_fast --batch 512 --new-policy-arg compile=true \
+    --new-policy-arg compile_mode=reduce-overhead
+part tp_cpu_fast_b1024_compile_graphs 300 "${TP[@]}" --preset cpu_fast --batch 1024 --new-policy-arg compile=true \
+    --new-policy-arg compile_mode=reduce-overhead
 part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
     --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
     --steps=20 --log_freq=5 --save_checkpoint=false --output_dir=/tmp/train_defaults --wandb.enable=false

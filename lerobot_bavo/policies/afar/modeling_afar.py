@@ -174,7 +174,7 @@ class AfarPolicy(ManiFlowPolicy):
         """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
-        self.invalidate_modulation_cache()  # an optimiser step on these weights follows
+        self.begin_training_step()
         cfg: AfarConfig = self.config
         use_rel = cfg.uses_relational_loss
         if use_rel:

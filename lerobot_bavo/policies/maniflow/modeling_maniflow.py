@@ -595,6 +595,14 @@ class ManiFlowPolicy(PreTrainedPolicy):
             keep_freed_heap()
         return self
 
+    def begin_training_step(self) -> None:
+        """Called first by `forward` in training: the weights are about to change (an optimiser step follows),
+        so cached inference modulations are forgotten; with CUDA graphs (`compile_mode` "reduce-overhead")
+        the previous step's graph outputs are declared dead, so that the graphs may reuse their memory."""
+        self.invalidate_modulation_cache()
+        if self.config.compile and self.config.compile_mode == "reduce-overhead":
+            torch.compiler.cudagraph_mark_step_begin()
+
     def invalidate_modulation_cache(self) -> None:
         """Forget both networks' cached inference modulations; call after changing weights in place outside
         `forward` / `update` / `load_state_dict` (which call it)."""
@@ -735,7 +743,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         """
         if reduction != "mean":
             raise NotImplementedError(f"{type(self).__name__}.forward supports reduction='mean' only.")
-        self.invalidate_modulation_cache()  # an optimiser step on these weights follows
+        self.begin_training_step()
         batch = self.training_batch(batch)
         pc, state = self._observation_tensors(batch)
         points, states, _ = self.model.observation_tokens(pc, state, need_future=False)
