@@ -363,6 +363,48 @@ def test_compile_gives_the_eager_step(kind):
     assert set(compiled.state_dict()) == set(eager.state_dict())  # checkpoints unchanged
 
 
+@pytest.mark.slow
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a CUDA device")
+@pytest.mark.parametrize("kind", ["maniflow", "afar"])
+def test_cuda_graphs_give_the_eager_steps(kind):
+    """`--policy.compile_mode=reduce-overhead` (CUDA graphs, recorded in the first steps, replayed after): the
+    eager step's losses and gradients over several optimiser steps on different batches, so a replay reads the
+    current weights and batch, not those it was recorded with (run on a GPU: docs/gpu.md)."""
+    name = {"maniflow": "maniflow", "afar": "afar_invalid_samples_anchor_subset_fps_prefix"}[kind]
+    _, overrides, batch_options = CASES[name]
+    tf32 = torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32
+    torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = False
+    try:
+        runs = {}
+        for mode in ("eager", "graphs"):
+            extra = {"compile": True, "compile_mode": "reduce-overhead"} if mode == "graphs" else {}
+            policy = make_policy(kind, {**overrides, **extra, "device": "cuda"}).to("cuda")
+            optimizer = torch.optim.SGD(policy.model.parameters(), lr=0.05)
+            runs[mode] = []
+            for step in range(4):
+                batch = {k: (v + 0.1 * step if v.is_floating_point() and k in (PC, STATE, ACT) else v).cuda()
+                         for k, v in make_batch(kind, **batch_options).items()}
+                torch.manual_seed(3 + step)
+                optimizer.zero_grad()
+                loss, logged = policy.forward(batch)
+                loss.backward()
+                grads = [None if p.grad is None else p.grad.detach().cpu().clone()
+                         for p in policy.model.parameters()]
+                optimizer.step()
+                policy.update()
+                runs[mode].append((logged, grads))
+    finally:
+        torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = tf32
+    for step, ((logged_e, grads_e), (logged_g, grads_g)) in enumerate(zip(runs["eager"], runs["graphs"])):
+        for key, value in logged_e.items():
+            assert logged_g[key] == pytest.approx(value, rel=1e-3, abs=1e-5), (step, key)
+        for i, (ge, gg) in enumerate(zip(grads_e, grads_g, strict=True)):
+            if ge is None:
+                assert gg is None, (step, i)
+            else:
+                torch.testing.assert_close(gg, ge, rtol=1e-3, atol=1e-5, msg=f"step {step}, parameter {i}")
+
+
 def test_benchmark_gpu_busy_fraction_is_the_union_of_kernel_intervals():
     """benchmarks/train_throughput.py's GPU busy figure (its CUDA path cannot run here; this part can)."""
     from _helpers import load_script
