@@ -56,6 +56,8 @@ part tp_cpu_fast_b512_compile_graphs 200 "${TP[@]}" --preset cpu_fast --batch 51
     --new-policy-arg compile_mode=reduce-overhead
 part tp_cpu_fast_b1024_compile_graphs 300 "${TP[@]}" --preset cpu_fast --batch 1024 --new-policy-arg compile=true \
     --new-policy-arg compile_mode=reduce-overhead
+# the graphed step's losses and gradients against eager (pytest's wheels carried in .device/whl-train: docs/gpu.md)
+part graphs_check 400 python -m pytest -m slow -q -p no:cacheprovider tests/test_training_step.py -k cuda_graphs
 part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
     --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
     --steps=20 --log_freq=5 --save_checkpoint=false --output_dir=/tmp/train_defaults --wandb.enable=false
