@@ -82,11 +82,22 @@ def print_operation_counts(policy, batch: dict) -> None:
             super().__init__()
             self.counts: collections.Counter = collections.Counter()
             self.phase = ""
+            self.compiled_forward = 0
 
         def __torch_dispatch__(self, func, types, args=(), kwargs=None):
             self.counts[self.phase, func.overloadpacket.__name__] += 1
+            if self.phase == "forward":
+                self.compiled_forward += depth[0] > 0
             return func(*args, **(kwargs or {}))
 
+    # forward operations inside the sub-networks `--policy.compile` compiles (CUDA graphs replay them without
+    # host work) against the rest, which stays eager; A-FAR's relational losses, compiled as a function, count
+    # as the rest here
+    depth = [0]
+    for model in (policy.model, policy.ema_model):
+        for module in policy.compiled_modules(model):
+            module.register_forward_pre_hook(lambda *_: depth.__setitem__(0, depth[0] + 1))
+            module.register_forward_hook(lambda *_: depth.__setitem__(0, depth[0] - 1))
     optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=1e-4, fused=True)
     for _ in range(2):
         policy.zero_grad(set_to_none=True)
@@ -106,6 +117,8 @@ def print_operation_counts(policy, batch: dict) -> None:
         phases[phase] += n
     print(f"ATen operations per training step: {sum(phases.values())} ("
           + ", ".join(f"{phase} {n}" for phase, n in phases.items()) + ")")
+    print(f"forward operations inside the compiled sub-networks: {counter.compiled_forward} of "
+          f"{phases['forward']}")
     top = counter.counts.most_common(12)
     print("most frequent: " + ", ".join(f"{phase}/{name} {n}" for (phase, name), n in top))
 

@@ -144,8 +144,8 @@ class AfarPolicy(ManiFlowPolicy):
     def _make_model(self, config: AfarConfig) -> AfarModel:
         return AfarModel(config)
 
-    def _compiled_modules(self, model: AfarModel) -> list[nn.Module]:
-        return super()._compiled_modules(model) + [model.world_query_former]
+    def compiled_modules(self, model: AfarModel) -> list[nn.Module]:
+        return super().compiled_modules(model) + [model.world_query_former]
 
     def _compile(self, mode: str) -> None:
         super()._compile(mode)

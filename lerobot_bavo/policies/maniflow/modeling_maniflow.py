@@ -562,7 +562,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
     def _make_model(self, config: ManiFlowConfig) -> ManiFlowModel:
         return ManiFlowModel(config)
 
-    def _compiled_modules(self, model: ManiFlowModel) -> list[nn.Module]:
+    def compiled_modules(self, model: ManiFlowModel) -> list[nn.Module]:
         """The sub-networks `compile` compiles (subclasses add theirs)."""
         return [model.point_encoder, model.state_encoder, model.dit]
 
@@ -570,7 +570,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         """`torch.compile` the sub-networks of both copies in place (`nn.Module.compile`: parameter names, and
         so checkpoints, are unchanged); see `ManiFlowConfig.compile`."""
         for model in (self.model, self.ema_model):
-            for module in self._compiled_modules(model):
+            for module in self.compiled_modules(model):
                 module.compile(mode=mode)
 
     # ---- LeRobot API
