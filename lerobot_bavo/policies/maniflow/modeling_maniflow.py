@@ -597,10 +597,11 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
     def begin_training_step(self) -> None:
         """Called first by `forward` in training: the weights are about to change (an optimiser step follows),
-        so cached inference modulations are forgotten; with CUDA graphs (`compile_mode` "reduce-overhead")
-        the previous step's graph outputs are declared dead, so that the graphs may reuse their memory."""
+        so cached inference modulations are forgotten; with CUDA graphs (`compile_mode` "reduce-overhead" or
+        "max-autotune") the previous step's graph outputs are declared dead, so the graphs may reuse their
+        memory."""
         self.invalidate_modulation_cache()
-        if self.config.compile and self.config.compile_mode == "reduce-overhead":
+        if self.config.compile and self.config.compile_mode in ("reduce-overhead", "max-autotune"):
             torch.compiler.cudagraph_mark_step_begin()
 
     def invalidate_modulation_cache(self) -> None:
