@@ -338,12 +338,16 @@ def test_use_amp_is_bf16_autocast_and_trains_on_cpu():
     assert all(p.dtype == torch.float32 for p in policy.parameters())
 
 
+# the case of each policy type that the compiled (and CUDA-graph) steps are checked on
+COMPILED_CASE = {"maniflow": "maniflow", "afar": "afar_invalid_samples_anchor_subset_fps_prefix"}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["maniflow", "afar"])
 def test_compile_gives_the_eager_step(kind):
     """`--policy.compile=true`: same losses and gradients as eager (compilation takes ~1 min on 2 CPU
     cores)."""
-    name = {"maniflow": "maniflow", "afar": "afar_invalid_samples_anchor_subset_fps_prefix"}[kind]
+    name = COMPILED_CASE[kind]
     _, overrides, batch_options = CASES[name]
     eager, compiled = make_policy(kind, overrides), make_policy(kind, {**overrides, "compile": True})
     batch = make_batch(kind, **batch_options)
@@ -370,7 +374,7 @@ def test_cuda_graphs_give_the_eager_steps(kind):
     """`--policy.compile_mode=reduce-overhead` (CUDA graphs, recorded in the first steps, replayed after): the
     eager step's losses and gradients over several optimiser steps on different batches, so a replay reads the
     current weights and batch, not those it was recorded with (run on a GPU: docs/gpu.md)."""
-    name = {"maniflow": "maniflow", "afar": "afar_invalid_samples_anchor_subset_fps_prefix"}[kind]
+    name = COMPILED_CASE[kind]
     _, overrides, batch_options = CASES[name]
     tf32 = torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32
     torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = False
