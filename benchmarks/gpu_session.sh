@@ -4,7 +4,8 @@
 # baseline}: `bash benchmarks/gpu_session.sh`. Each part has its own time limit and writes its log under
 # $OUT (or outputs/gpu_session), so whatever finishes comes back even when a later part runs out of time.
 # PARTS="collect tp_paper_b512_amp ..." runs only the parts named (collect is needed by every tp_* part).
-#   1. a small Cube Handoff points view collected there (2 Stage episodes);
+#   1. a small Cube Handoff points view collected there (6 Stage episodes, ~2,560 frames: more than one batch
+#      of 1024, which the timed loaders need, since they drop a partial batch);
 #   2. issue 28: training step throughput, old (.device/baseline) vs new code, side by side, with GPU busy and
 #      the batch fetch alone; the new code gathers its batches on the GPU (num_workers=0), and the *_host_gather
 #      parts time it with BAVO_DEVICE_BATCHES=0 (gathered on the host, as before device-resident batches);
@@ -32,8 +33,8 @@ python -c 'import torch; print("torch", torch.__version__, "cuda", torch.version
 python -c "import os; print('cores', os.cpu_count())" | tee -a "$OUT/gpu.txt"  # nproc would print OMP_NUM_THREADS
 
 DATA=$(mktemp -d /tmp/gpu_bench.XXXXXX)/gpu_bench  # fresh each run (a machine may be reused)
-part collect 90 bash -c "bavo-collect --task cube_handoff --condition stage --episodes 2 --repo-id local/gpu_bench \
-    --root $DATA --workers 2 --no-progress && python -m lerobot_bavo.datasets.views --root $DATA --view points"
+part collect 90 bash -c "bavo-collect --task cube_handoff --condition stage --episodes 6 --repo-id local/gpu_bench \
+    --root $DATA --workers 6 --no-progress && python -m lerobot_bavo.datasets.views --root $DATA --view points"
 TP=(python benchmarks/train_throughput.py --device cuda --threads 8 --root ${DATA}_points
     --repo-id local/gpu_bench_points --baseline-dir .device/baseline --steps 15 --warmup 5 --load-batches 20)
 part tp_paper_b512_amp 100 "${TP[@]}" --preset paper --batch 512 --use-amp
@@ -58,6 +59,21 @@ part tp_cpu_fast_b1024_compile_graphs 300 "${TP[@]}" --preset cpu_fast --batch 1
     --new-policy-arg compile_mode=reduce-overhead
 # the graphed step's losses and gradients against eager (pytest's wheels carried in .device/whl-train: docs/gpu.md)
 part graphs_check 400 python -m pytest -m slow -q -p no:cacheprovider tests/test_training_step.py -k cuda_graphs
+# the recipe's compile setting end to end: lerobot-train with CUDA graphs, a checkpoint saved at the end
+part train_graphs 240 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
+    --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
+    --num_workers=0 --batch_size=512 --steps=40 --log_freq=10 --save_freq=40 --output_dir=/tmp/train_graphs \
+    --policy.compile=true --policy.compile_mode=reduce-overhead --wandb.enable=false
+# docs/gpu.md's recipe command as written (paper preset, bf16, batch 512, compiled with CUDA graphs), five steps
+# (5 x 512 of the view's ~2,560 frames: no partial batch), a checkpoint saved, then loaded back and run once
+part recipe_check 450 bash -c "lerobot-train --policy.type=afar --policy.preset=paper --policy.device=cuda \
+    --policy.use_amp=true --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points \
+    --dataset.root=${DATA}_points --batch_size=512 --steps=5 --policy.optimizer_lr=2.8e-4 \
+    --policy.scheduler_warmup_steps=500 --num_workers=0 --policy.compile=true \
+    --policy.compile_mode=reduce-overhead --save_freq=5 --log_freq=1 --seed=1000 \
+    --output_dir=/tmp/recipe_check --wandb.enable=false && bavo-eval --policy \
+    /tmp/recipe_check/checkpoints/last/pretrained_model --tasks cube_handoff --conditions stage --episodes 1 \
+    --seed 1000 --workers 1 --output-dir /tmp/recipe_check_eval"
 part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
     --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
     --steps=20 --log_freq=5 --save_checkpoint=false --output_dir=/tmp/train_defaults --wandb.enable=false

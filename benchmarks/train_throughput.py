@@ -98,6 +98,7 @@ def build(args, preset: str, batch_size: int, fast: bool):
         raise SystemExit(
             f"{args.root} cannot be served from memory (see lerobot_bavo.datasets.fast.supports)"
         )
+    require_a_full_batch(ds.num_frames, batch_size, args.root)
     policy = make_policy(cfg, ds_meta=ds.meta)
     policy.train()
     pre, _ = make_pre_post_processors(cfg, dataset_stats=ds.meta.stats)
@@ -110,6 +111,14 @@ def build(args, preset: str, batch_size: int, fast: bool):
                                                    drop_last=True, generator=gen)
 
     return ds, batches(), pre, policy, opt
+
+
+def require_a_full_batch(num_frames: int, batch: int, root) -> None:
+    """The loaders drop the last partial batch (every timed step has the same shape), so a view with fewer
+    frames than one batch would never yield one and the benchmark would wait forever."""
+    if batch > num_frames:
+        raise SystemExit(f"--batch {batch} is larger than {root}'s {num_frames} frames: collect more "
+                         "episodes or use a smaller batch")
 
 
 def step(path) -> float:
@@ -200,6 +209,7 @@ def serve_steps(args) -> None:
         raise SystemExit(
             f"{args.root} cannot be served from memory (see lerobot_bavo.datasets.fast.supports)"
         )
+    require_a_full_batch(ds.num_frames, args.batch, args.root)
     policy = make_policy(cfg, ds_meta=ds.meta)
     pre, _ = make_pre_post_processors(cfg, dataset_stats=ds.meta.stats)
     opt_cfg = cfg.get_optimizer_preset()
@@ -280,9 +290,12 @@ def serve_steps(args) -> None:
                 wall_us = (time.perf_counter() - t0) * 1e6
             kernels = [(e.time_range.start, e.time_range.end) for e in prof.events()
                        if e.device_type == DeviceType.CUDA]
-            mem = torch.cuda.max_memory_allocated() / 2**30 if args.device == "cuda" else None
-            print(json.dumps({"busy": busy_fraction(kernels, wall_us) if kernels else None, "mem_gib": mem}),
-                  flush=True)
+            cuda = args.device == "cuda"
+            mem = torch.cuda.max_memory_allocated() / 2**30 if cuda else None
+            # reserved includes the CUDA graphs' private pools, which the allocated figure leaves out
+            reserved = torch.cuda.max_memory_reserved() / 2**30 if cuda else None
+            print(json.dumps({"busy": busy_fraction(kernels, wall_us) if kernels else None, "mem_gib": mem,
+                              "reserved_gib": reserved}), flush=True)
         elif cmd[0] == "quit":
             return
 
@@ -392,11 +405,12 @@ def compare_steps(args) -> None:
         for i in range(args.load_batches):
             for name in (("old", "new") if i % 2 == 0 else ("new", "old")):
                 loads[name].append(ask(name, "load"))
-        busy, peak = {}, {}
+        busy, peak, reserved = {}, {}, {}
         if args.device == "cuda" and args.profile_steps > 0:
             profiled = {name: ask(name, f"profile {args.profile_steps}") for name in workers}
             busy = {name: p["busy"] for name, p in profiled.items()}
             peak = {name: p.get("mem_gib") for name, p in profiled.items()}
+            reserved = {name: p.get("reserved_gib") for name, p in profiled.items()}
         for worker in workers.values():
             worker.stdin.write("quit\n")
             worker.stdin.flush()
@@ -415,6 +429,7 @@ def compare_steps(args) -> None:
         extra = f", batches gathered on {gather[name]}"
         extra += f", GPU busy {busy[name]:.0%}" if busy.get(name) is not None else ""
         extra += f", peak GPU memory {peak[name]:.1f} GiB" if peak.get(name) is not None else ""
+        extra += f" ({reserved[name]:.1f} GiB reserved)" if reserved.get(name) is not None else ""
         print(
             f"  {name}: {med * 1e3:8.1f} ms per step of {args.batch} (quartiles "
             f"{q1 * 1e3:.1f}-{q3 * 1e3:.1f}), "
