@@ -418,6 +418,9 @@ def test_benchmark_gpu_busy_fraction_is_the_union_of_kernel_intervals():
     assert bench.busy_fraction([], wall=10) == 0.0
     assert bench.policy_overrides(["compile=true", "batch=3", "lr=1e-4", "mode=reduce-overhead"]) == {
         "compile": True, "batch": 3, "lr": 1e-4, "mode": "reduce-overhead"}
+    bench.require_a_full_batch(num_frames=860, batch=860, root="v")  # exactly one full batch: fine
+    with pytest.raises(SystemExit, match="1024 is larger than v's 860 frames"):
+        bench.require_a_full_batch(num_frames=860, batch=1024, root="v")  # the loaders would never yield one
 
 
 if __name__ == "__main__":
