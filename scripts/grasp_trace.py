@@ -48,13 +48,30 @@ def object_position(env, name: str) -> np.ndarray:
     raise SystemExit(f"--grasp: no body or geom named {name!r} in this task's model")
 
 
+def commanded_site(env, scratch: mujoco.MjData, action: np.ndarray, site: str) -> np.ndarray:
+    """World position (m) a site would have with the arms at the joint targets `action` commands (the
+    position actuators' set points, through the env's own `action_to_ctrl`), everything else as now: where
+    the policy asked the gripper to be, as against where the controllers have brought it."""
+    ctrl = env.action_to_ctrl(np.clip(action, env.action_space.low, env.action_space.high))
+    scratch.qpos[:] = env.data.qpos
+    for i in range(env.model.nu):
+        joint = env.model.actuator_trnid[i, 0]
+        arm_joint = not C.ACTION_NAMES[i].endswith("gripper")
+        if env.model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_HINGE and arm_joint:
+            scratch.qpos[env.model.jnt_qposadr[joint]] = ctrl[i]
+    mujoco.mj_kinematics(env.model, scratch)
+    return scratch.site(site).xpos.copy()
+
+
 def trace_episode(env, agent, seed: int, side: str, obj: str, closed: float) -> dict:
     """One episode; the first step the `side` gripper command falls below `closed` and the gripper centre
-    minus the object's centre then (world frame, mm); the closest the gripper centre came to the object's
+    minus the object's centre then (world frame, mm), both where it is and where the arm's joint targets
+    of that step put it (`commanded_offset_mm`); the closest the gripper centre came to the object's
     centre (mm, and when), and the lowest command sent."""
+    scratch = mujoco.MjData(env.model)
     dim = C.ACTION_NAMES.index(f"{side}_gripper")
-    seen = {"close_step": None, "offset_mm": None, "closest_mm": float("inf"), "closest_step": None,
-            "min_command": 1.0}
+    seen = {"close_step": None, "offset_mm": None, "commanded_offset_mm": None, "closest_mm": float("inf"),
+            "closest_step": None, "min_command": 1.0}
     act = agent.act
 
     def logging_act(obs, info):
@@ -67,6 +84,9 @@ def trace_episode(env, agent, seed: int, side: str, obj: str, closed: float) -> 
         if seen["close_step"] is None and float(action[dim]) < closed:
             seen["close_step"] = int(info["elapsed_steps"])
             seen["offset_mm"] = [round(1000 * float(v), 1) for v in offset]
+            target = commanded_site(env, scratch, action, f"{side}_gripper_center")
+            commanded = target - object_position(env, obj)
+            seen["commanded_offset_mm"] = [round(1000 * float(v), 1) for v in commanded]
         return action
 
     agent.act = logging_act
