@@ -32,7 +32,7 @@
 # the run folder, outputs/train/<task>_<method><TAG>_dart_s<SEED>).
 #
 # Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
-# Environment overrides: TASK, STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM,
+# Environment overrides: TASK, DEMOS, BIN, STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM,
 # TAG (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/cube_handoff_maniflow_state_b256_s1000), STOP_AT,
 # WORKERS (collection and evaluation processes, default 2), and DATA: empty for the noise-free demonstrations
 # (outputs/datasets/bavo_<task>), `dart` for the DART-style ones collected with `--execution-noise $NOISE`
@@ -43,6 +43,8 @@ cd "$(dirname "$0")/.."
 export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
 export OMP_NUM_THREADS="${THREADS:-1}"
 TASK="${TASK:-cube_handoff}"
+BIN="${BIN-.venv/bin/}"  # where the project's commands are; BIN= (empty) takes them from PATH (a GPU machine)
+DEMOS="${DEMOS:-100}"    # demonstrations `collect` records (the paper's 100; fewer only for smoke tests)
 DATA="${DATA:-}"
 WORKERS="${WORKERS:-2}"
 STOP_AT="${STOP_AT:-4000}"
@@ -68,7 +70,7 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
     local out=outputs/train/$name
     if [ -f "$out/checkpoints/last/pretrained_model/train_config.json" ]; then
         echo "[train] resuming $out"
-        .venv/bin/lerobot-train --config_path="$out/checkpoints/last/pretrained_model/train_config.json" \
+        ${BIN}lerobot-train --config_path="$out/checkpoints/last/pretrained_model/train_config.json" \
             --resume=true 2>&1 | tee -a "outputs/train/$name.log"
         return
     fi
@@ -76,7 +78,7 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
     local policy_args=(--policy.type="$type" --policy.preset="$PRESET")
     # FROM: start from a checkpoint's weights, EMA and processors (its config; fresh optimiser and schedule)
     [ -n "$FROM" ] && policy_args=(--policy.path="$FROM")
-    .venv/bin/lerobot-train "${policy_args[@]}" \
+    ${BIN}lerobot-train "${policy_args[@]}" \
         --dataset.repo_id="${REPO}_$view" --dataset.root="${DS}_$view" \
         --policy.device="$DEVICE" --policy.push_to_hub=false --num_workers=0 \
         --batch_size="$BATCH" --steps="$STEPS" --save_freq="$SAVE_FREQ" --log_freq=50 --seed="$SEED" \
@@ -87,18 +89,18 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
 test_eval() {  # test_eval POLICY OUTPUT_DIR [bavo-eval args...]: the 40 test seeds 2000-2039, all conditions
     local policy=$1 out=$2
     shift 2
-    .venv/bin/bavo-eval --policy "$policy" --tasks "$TASK" --conditions clean,stage,random --episodes 40 \
+    ${BIN}bavo-eval --policy "$policy" --tasks "$TASK" --conditions clean,stage,random --episodes 40 \
         --seed 2000 --workers "$WORKERS" --output-dir "$out" "$@"
 }
 
 case "${1:-}" in
     collect)
-        .venv/bin/bavo-collect --task "$TASK" --condition stage --episodes 100 --repo-id "$REPO" \
+        ${BIN}bavo-collect --task "$TASK" --condition stage --episodes "$DEMOS" --repo-id "$REPO" \
             --root "$DS" --workers "$WORKERS" ${DATA:+--execution-noise "$NOISE"} \
             ${SELF_FILTER:+--n-points 512 --self-filter} ;;
     views)
         for v in points state; do
-            [ -d "${DS}_$v" ] || .venv/bin/python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
+            [ -d "${DS}_$v" ] || ${BIN}python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
         done ;;
     state) train "${TASK}_maniflow_state${TAG}_s$SEED" maniflow state "${@:2}" ;;
     maniflow) train "${TASK}_maniflow${TAG}_s$SEED" maniflow points "${@:2}" ;;
@@ -106,7 +108,7 @@ case "${1:-}" in
     eval)
         run=${2:?usage: eval RUN [STEP]}
         step=${3:-last}
-        .venv/bin/bavo-eval --policy "outputs/train/$run/checkpoints/$step/pretrained_model" \
+        ${BIN}bavo-eval --policy "outputs/train/$run/checkpoints/$step/pretrained_model" \
             --tasks "$TASK" --conditions clean,stage --episodes "$EPISODES" --seed 1000 \
             --workers 1 --videos 2 --output-dir "outputs/eval/${run}_$step" ;;
     test)
@@ -129,7 +131,7 @@ case "${1:-}" in
         if [ ! -d "outputs/train/$run/checkpoints/$ckpt" ]; then
             # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
             # the gripper levels the demonstrations hold (part-open ones too: Drawer Stowing's 0.45 and 0.7)
-            levels=$(.venv/bin/python -m lerobot_bavo.datasets.action_levels \
+            levels=$(${BIN}python -m lerobot_bavo.datasets.action_levels \
                 --root "outputs/datasets/bavo_${TASK}_${data}_points")
             bash "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 \
                 --policy.binary_action_levels="$levels" &
@@ -149,11 +151,11 @@ case "${1:-}" in
         ship="checkpoints/${method}_${TASK}$suffix"  # the first training seed's; others get a suffix
         [ "$SEED" = 1000 ] || ship="${ship}_s$SEED"
         evaldir="outputs/eval/grid_table/runs/$method$entry/s$SEED/$TASK"
-        .venv/bin/python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
+        ${BIN}python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
         test_eval "$ship" "$evaldir" --videos 0
-        .venv/bin/python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
+        ${BIN}python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
             --output "$ship"
-        .venv/bin/python scripts/grid_runs.py save ;;  # the episode logs to commit (docs/results/grid_table)
+        ${BIN}python scripts/grid_runs.py save ;;  # the episode logs to commit (docs/results/grid_table)
     *)
         sed -n 2,35p "$0"; exit 2 ;;
 esac
