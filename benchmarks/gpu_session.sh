@@ -66,7 +66,7 @@ part train_graphs 240 lerobot-train --policy.type=afar --policy.preset=cpu_fast 
     --policy.compile=true --policy.compile_mode=reduce-overhead --wandb.enable=false
 # docs/gpu.md's recipe command as written (paper preset, bf16, batch 512, compiled with CUDA graphs), five steps
 # (5 x 512 of the view's ~2,560 frames: no partial batch), a checkpoint saved, then loaded back and run once
-part recipe_check 450 bash -c "lerobot-train --policy.type=afar --policy.preset=paper --policy.device=cuda \
+part recipe_check 450 bash -c "rm -rf /tmp/recipe_check /tmp/recipe_check_eval && lerobot-train --policy.type=afar --policy.preset=paper --policy.device=cuda \
     --policy.use_amp=true --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points \
     --dataset.root=${DATA}_points --batch_size=512 --steps=5 --policy.optimizer_lr=2.8e-4 \
     --policy.scheduler_warmup_steps=500 --num_workers=0 --policy.compile=true \
