@@ -55,10 +55,8 @@ def commanded_site(env, scratch: mujoco.MjData, action: np.ndarray, site: str) -
     ctrl = env.action_to_ctrl(np.clip(action, env.action_space.low, env.action_space.high))
     scratch.qpos[:] = env.data.qpos
     for i in range(env.model.nu):
-        joint = env.model.actuator_trnid[i, 0]
-        arm_joint = not C.ACTION_NAMES[i].endswith("gripper")
-        if env.model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_HINGE and arm_joint:
-            scratch.qpos[env.model.jnt_qposadr[joint]] = ctrl[i]
+        if i not in C.GRIPPER_INDICES:  # a gripper's set point is a finger opening, not where the hand goes
+            scratch.qpos[env.model.jnt_qposadr[env.model.actuator_trnid[i, 0]]] = ctrl[i]
     mujoco.mj_kinematics(env.model, scratch)
     return scratch.site(site).xpos.copy()
 
