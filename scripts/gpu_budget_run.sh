@@ -7,9 +7,9 @@
 #   TASK=cube_handoff METHOD=afar bash scripts/gpu_budget_run.sh [data|train|ship|all]   # default: all
 #
 # Stages, each resumable (re-run the same command; a killed call loses at most SAVE_FREQ steps):
-#   data   100 DART Stage demonstrations with self-filtered clouds (`train_task.sh collect`, WORKERS = all
-#          cores but one) and their training views; skipped once done.
-#   train  `train_task.sh afar|maniflow` on CUDA at batch BATCH (512), with the learning rate scaled by the
+#   data   100 DART Stage demonstrations with self-filtered clouds and their training views (`train_task.sh
+#          data`, WORKERS = all cores but one); skipped once done.
+#   train  `train_task.sh recipe-train afar|maniflow` on CUDA at batch BATCH (512), with the learning rate scaled by the
 #          square root of the batch from the recipe's 3e-4 at 128 (6e-4), the recipe's schedule shape (a cosine
 #          over 5/4 of the steps, stopped at STOP = SAMPLES / BATCH: 12,500 steps, as the recipe stops at 4,000
 #          of 5,000) and `--policy.compile=true --policy.compile_mode=reduce-overhead` (COMPILE=0: eager).
@@ -52,36 +52,16 @@ CKPT=$(printf %06d "$STOP")
 log() { echo "[gpu_budget_run $(date +%T)] $*"; }
 
 data() {
-    local marker="outputs/datasets/bavo_${TASK}_$DATA.collected"
-    if [ ! -f "$marker" ]; then
-        WORKERS="${WORKERS:-$(python3 -c 'import os; print(max(1, os.cpu_count() - 1))')}" \
-            bash scripts/train_task.sh collect && touch "$marker"
-    fi
-    bash scripts/train_task.sh views
+    WORKERS="${WORKERS:-$(python3 -c 'import os; print(max(1, os.cpu_count() - 1))')}" bash scripts/train_task.sh data
 }
 
 train() {
-    [ -d "outputs/train/$RUN/checkpoints/$CKPT" ] && { log "step $STOP already saved"; return; }
-    local levels
-    levels=$(${BINDIR}python -m lerobot_bavo.datasets.action_levels --root "outputs/datasets/bavo_${TASK}_${DATA}_points")
     local compile=()
     [ "$COMPILE" = 1 ] && compile=(--policy.compile=true --policy.compile_mode=reduce-overhead)
-    log "$RUN: batch $BATCH, lr $LR, stop at step $STOP of a $((STOP * 5 / 4))-step cosine, levels $levels"
-    STEPS=$((STOP * 5 / 4)) BATCH="$BATCH" LR="$LR" WARMUP=200 SAVE_FREQ=$((STOP / 10)) THREADS="${THREADS:-8}" \
-        TAG="$TAG" bash scripts/train_task.sh "$METHOD" --policy.points_per_step=128 --policy.n_action_steps=12 \
-        --policy.occluder_dropout=0.5 --policy.binary_action_levels="$levels" "${compile[@]}" &
-    local pid=$! t0=$SECONDS
-    while kill -0 "$pid" 2>/dev/null; do
-        # LeRobot moves `last` once a checkpoint is completely written
-        if [ "$(readlink "outputs/train/$RUN/checkpoints/last" 2>/dev/null)" = "$CKPT" ] \
-            || { [ "$TRAIN_SECONDS" -gt 0 ] && [ $((SECONDS - t0)) -ge "$TRAIN_SECONDS" ]; }; then
-            pkill -INT -P "$pid" -f lerobot-train || true; sleep 10; pkill -P "$pid" -f lerobot-train || true
-            break
-        fi
-        sleep 5
-    done
-    wait "$pid" || true
-    log "$RUN: last checkpoint $(readlink "outputs/train/$RUN/checkpoints/last" 2>/dev/null || echo none)"
+    log "$RUN: batch $BATCH, lr $LR, stop at step $STOP of a $((STOP * 5 / 4))-step cosine"
+    STEPS=$((STOP * 5 / 4)) STOP_AT="$STOP" BATCH="$BATCH" LR="$LR" WARMUP=200 SAVE_FREQ=$((STOP / 10)) \
+        THREADS="${THREADS:-8}" TAG="$TAG" TRAIN_SECONDS="$TRAIN_SECONDS" \
+        bash scripts/train_task.sh recipe-train "$METHOD" "${compile[@]}"
 }
 
 ship() {

@@ -11,6 +11,9 @@
 #   bash scripts/train_task.sh afar         # rung 3: A-FAR (same budget and seed as rung 2)
 #   bash scripts/train_task.sh eval RUN     # bavo-eval of outputs/train/RUN on the validation seeds (clean + stage)
 #   bash scripts/train_task.sh test RUN STEP  # bavo-eval on the 40 test seeds 2000-2039, clean + stage + random
+#   bash scripts/train_task.sh data         # collect (once; a marker records it) + views
+#   bash scripts/train_task.sh recipe-train METHOD  # the recipe's training arguments, stopped after STOP_AT
+#                                             # (or after TRAIN_SECONDS; run again to resume)
 #   bash scripts/train_task.sh recipe METHOD  # collect + views + the shipped recipe for METHOD (afar|maniflow),
 #                                             # stopped after step STOP_AT (4000), shipped to
 #                                             # checkpoints/<method>_<task> and evaluated on the 40 test seeds in
@@ -32,7 +35,7 @@
 # the run folder, outputs/train/<task>_<method><TAG>_dart_s<SEED>).
 #
 # Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
-# Environment overrides: TASK, DEMOS, BIN, STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM,
+# Environment overrides: TASK, DEMOS, BIN, TRAIN_SECONDS, STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM,
 # TAG (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/cube_handoff_maniflow_state_b256_s1000), STOP_AT,
 # WORKERS (collection and evaluation processes, default 2), and DATA: empty for the noise-free demonstrations
 # (outputs/datasets/bavo_<task>), `dart` for the DART-style ones collected with `--execution-noise $NOISE`
@@ -61,7 +64,8 @@ DEVICE="${DEVICE:-cpu}"
 EPISODES="${EPISODES:-20}"
 LR="${LR:-}"          # empty: the policy's preset (1e-4, the paper's)
 WARMUP="${WARMUP:-}"  # empty: the preset's 500 warm-up steps
-TAG="${TAG:-}${DATA:+_$DATA}"
+RUN_TAG="${TAG:-}"   # as given: a stage that starts another hands this on (that one appends the data variant)
+TAG="${RUN_TAG}${DATA:+_$DATA}"
 FROM="${FROM:-}"      # a pretrained_model folder to fine-tune (e.g. checkpoints/afar_cube_handoff); empty: from scratch
 
 train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
@@ -115,6 +119,33 @@ case "${1:-}" in
         run=${2:?usage: test RUN STEP}
         step=$(printf %06d "${3:?usage: test RUN STEP}")
         test_eval "outputs/train/$run/checkpoints/$step/pretrained_model" "outputs/eval/${run}_${step}_test" ;;
+    data)  # collect (bavo-collect resumes a killed collection; the marker beside the dataset says it finished)
+        # and the training views
+        [ -f "$DS.collected" ] || { bash "$0" collect && touch "$DS.collected"; }
+        bash "$0" views ;;
+    recipe-train)  # the shipped recipe's training arguments, stopped once step STOP_AT is saved, or after
+        # TRAIN_SECONDS (0, default: no bound; a later call resumes from the last checkpoint)
+        method=${2:?usage: recipe-train afar|maniflow [lerobot-train args...]}
+        case "$method" in afar|maniflow) ;; *) echo "recipe-train: afar or maniflow, not '$method'" >&2; exit 2 ;; esac
+        run="${TASK}_${method}${TAG}_s$SEED"
+        ckpt=$(printf %06d "$STOP_AT")
+        [ -d "outputs/train/$run/checkpoints/$ckpt" ] && { echo "[recipe-train] $run: step $STOP_AT saved"; exit 0; }
+        # the gripper levels the demonstrations hold (part-open ones too: Drawer Stowing's 0.45 and 0.7)
+        levels=$(${BIN}python -m lerobot_bavo.datasets.action_levels --root "${DS}_points")
+        TAG="$RUN_TAG" bash "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 \
+            --policy.occluder_dropout=0.5 --policy.binary_action_levels="$levels" "${@:3}" &
+        pid=$! t0=$SECONDS
+        while kill -0 "$pid" 2>/dev/null; do
+            # LeRobot moves `last` once a checkpoint is completely written
+            if [ "$(readlink "outputs/train/$run/checkpoints/last" 2>/dev/null)" = "$ckpt" ] \
+                || { [ "${TRAIN_SECONDS:-0}" -gt 0 ] && [ $((SECONDS - t0)) -ge "$TRAIN_SECONDS" ]; }; then
+                pkill -INT -P "$pid" -f lerobot-train || true; sleep 10; pkill -P "$pid" -f lerobot-train || true
+                break
+            fi
+            sleep 5
+        done
+        wait "$pid" || true
+        echo "[recipe-train] $run: last checkpoint $(readlink "outputs/train/$run/checkpoints/last" 2>/dev/null || echo none)" ;;
     recipe)
         method=${2:?usage: recipe afar|maniflow}
         case "$method" in afar|maniflow) ;; *) echo "recipe: afar or maniflow, not '$method'" >&2; exit 2 ;; esac
@@ -122,30 +153,11 @@ case "${1:-}" in
         data=dart suffix="" entry=""
         [ -n "$SELF_FILTER" ] && data=dartsf512 suffix=_sf entry=-self-filter
         export DATA=$data STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50
-        # bavo-collect resumes a killed collection; the marker (beside the dataset) says it finished
-        [ -f "outputs/datasets/bavo_${TASK}_$data.collected" ] \
-            || { bash "$0" collect && touch "outputs/datasets/bavo_${TASK}_$data.collected"; }
-        bash "$0" views
+        bash "$0" data
         run="${TASK}_${method}_p128_od50_${data}_s$SEED"
         ckpt=$(printf %06d "$STOP_AT")
-        if [ ! -d "outputs/train/$run/checkpoints/$ckpt" ]; then
-            # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
-            # the gripper levels the demonstrations hold (part-open ones too: Drawer Stowing's 0.45 and 0.7)
-            levels=$(${BIN}python -m lerobot_bavo.datasets.action_levels \
-                --root "outputs/datasets/bavo_${TASK}_${data}_points")
-            bash "$0" "$method" --policy.points_per_step=128 --policy.n_action_steps=12 --policy.occluder_dropout=0.5 \
-                --policy.binary_action_levels="$levels" &
-            pid=$!
-            while kill -0 "$pid" 2>/dev/null; do
-                # LeRobot moves `last` once a checkpoint is completely written
-                if [ "$(readlink "outputs/train/$run/checkpoints/last" 2>/dev/null)" = "$ckpt" ]; then
-                    pkill -INT -P "$pid" -f lerobot-train || true; sleep 10; pkill -P "$pid" -f lerobot-train || true
-                    break
-                fi
-                sleep 15
-            done
-            wait "$pid" || true
-        fi
+        # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
+        bash "$0" recipe-train "$method"
         # ship the inference weights, evaluate the shipped folder where `bavo-eval --grid
         # configs/grid_table.yaml` finds it (runs/<method>/s<SEED>/<task>), then write its card with the results
         ship="checkpoints/${method}_${TASK}$suffix"  # the first training seed's; others get a suffix
