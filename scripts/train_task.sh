@@ -40,7 +40,8 @@
 # WORKERS (collection and evaluation processes, default 2), and DATA: empty for the noise-free demonstrations
 # (outputs/datasets/bavo_<task>), `dart` for the DART-style ones collected with `--execution-noise $NOISE`
 # (default 0.01 rad; outputs/datasets/bavo_<task>_dart, runs get a _dart suffix); SELF_FILTER=1 collects with
-# `--n-points 512 --self-filter` (use it with DATA=dartsf512, as `recipe` does).
+# `--n-points 512 --self-filter` (use it with DATA=dartsf512, as `recipe` does); CLEAN_CONTACTS=1 adds
+# `--execution-noise-clean-contacts` (no noise in the expert's approach, grasp and release phases).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
@@ -53,6 +54,7 @@ WORKERS="${WORKERS:-2}"
 STOP_AT="${STOP_AT:-4000}"
 NOISE="${NOISE:-0.01}"
 SELF_FILTER="${SELF_FILTER:-}"
+CLEAN_CONTACTS="${CLEAN_CONTACTS:-}"  # 1: no execution noise in the expert's contact phases (approach, grasp, release)
 DS=outputs/datasets/bavo_${TASK}${DATA:+_$DATA}
 REPO=local/bavo_${TASK}${DATA:+_$DATA}
 STEPS="${STEPS:-8000}"
@@ -101,6 +103,7 @@ case "${1:-}" in
     collect)
         ${BIN}bavo-collect --task "$TASK" --condition stage --episodes "$DEMOS" --repo-id "$REPO" \
             --root "$DS" --workers "$WORKERS" ${DATA:+--execution-noise "$NOISE"} \
+            ${CLEAN_CONTACTS:+--execution-noise-clean-contacts} \
             ${SELF_FILTER:+--n-points 512 --self-filter} ;;
     views)
         for v in points state; do

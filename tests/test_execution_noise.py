@@ -115,14 +115,19 @@ def test_contact_phases_are_executed_clean_and_restart_the_offset():
     assert np.abs(first).max() < 5 * np.sqrt(1 - 0.81) * 0.02
 
 
-def test_cube_handoff_contact_phases_are_phases_of_its_expert():
+@pytest.mark.parametrize("module, name", [("cube_handoff", "CubeHandoffExpert"),
+                                          ("block_stacking", "BlockStackingExpert"),
+                                          ("dustpan_sweeping", "DustpanSweepingExpert")])
+def test_contact_phases_are_phases_of_their_expert(module, name):
+    """A misspelt contact phase would silently leave that phase noisy: each must be one the script emits."""
+    import importlib
     import inspect
 
-    from lerobot_bavo.experts.cube_handoff import CubeHandoffExpert
-
-    source = inspect.getsource(CubeHandoffExpert.script)
-    for phase in CubeHandoffExpert.contact_phases:
-        assert f'phase="{phase}"' in source, phase
+    expert = getattr(importlib.import_module(f"lerobot_bavo.experts.{module}"), name)
+    assert expert.contact_phases
+    source = inspect.getsource(expert.script)
+    for phase in expert.contact_phases:
+        assert f'"{phase}"' in source, phase  # phase="..." or a carry's positional phase
 
 
 def test_quiet_only_in_declared_contact_phases_and_only_when_asked():

@@ -37,6 +37,8 @@ CLOSING = {"left": (1.0, 0.0, 0.0), "right": (-1.0, 0.0, 0.0)}
 
 class BlockStackingExpert(ScriptedExpert):
     task_name = "block_stacking"
+    contact_phases = frozenset({"descend", "grasp", "lower", "release", "left_descend", "left_grasp", "stack",
+                                "left_release"})
 
     def in_hand(self, side: str, body: str) -> np.ndarray:
         """Block centre in the gripper-centre frame (m), measured from the simulator."""

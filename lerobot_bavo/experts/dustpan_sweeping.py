@@ -47,6 +47,8 @@ def planar_pose(pos, yaw: float) -> np.ndarray:
 
 class DustpanSweepingExpert(ScriptedExpert):
     task_name = "dustpan_sweeping"
+    contact_phases = frozenset({"left_descend", "left_grasp", "advance", "right_descend", "right_grasp",
+                                "pre_sweep", "sweep"})
 
     # -- helpers ----------------------------------------------------------------------------
     def object_pose(self, name: str) -> np.ndarray:

@@ -52,9 +52,10 @@ class ExecutionNoise:
     """DART-style noise on the executed arm joint targets (see the module docstring).
 
     Args:
-        std: stationary standard deviation of each joint's offset, radians (0: no noise). The Cube
-            Handoff runs used 0.01 rad (~5 mm at the gripper); 0.03 rad made the expert fail every
-            episode. No other value was tried.
+        std: stationary standard deviation of each joint's offset, radians (0: no noise). The recipe
+            uses 0.01 rad (~5 mm at the gripper). Larger offsets make the experts fail unless the
+            contact phases are kept clean, and even then on tasks where one arm holds an object while
+            the other works (Dustpan Sweeping); docs/results/dart_noise.md has the measured rates.
         correlation: per-control-step AR(1) coefficient in [0, 1).
         clean_contacts: no noise during the expert's `contact_phases`.
     """
