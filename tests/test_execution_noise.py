@@ -117,7 +117,8 @@ def test_contact_phases_are_executed_clean_and_restart_the_offset():
 
 @pytest.mark.parametrize("module, name", [("cube_handoff", "CubeHandoffExpert"),
                                           ("block_stacking", "BlockStackingExpert"),
-                                          ("dustpan_sweeping", "DustpanSweepingExpert")])
+                                          ("dustpan_sweeping", "DustpanSweepingExpert"),
+                                          ("drawer_stowing", "DrawerStowingExpert")])
 def test_contact_phases_are_phases_of_their_expert(module, name):
     """A misspelt contact phase would silently leave that phase noisy: each must be one the script emits."""
     import importlib
