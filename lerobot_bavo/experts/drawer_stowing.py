@@ -32,8 +32,9 @@ class DrawerStowingExpert(ScriptedExpert):
     task_name = "drawer_stowing"
     # the right arm's handle grasps, releases and push, the left arm's block descent, grasp, lowering and
     # release; not the pull (the left arm's approach to above the block happens then)
-    contact_phases = frozenset({"descend_handle", "grasp_handle", "right_release", "descend_block", "grasp_block",
-                                "lower", "release", "descend_handle_again", "grasp_handle_again", "push_closed"})
+    contact_phases = frozenset({"descend_handle", "grasp_handle", "right_release", "descend_block",
+                                "grasp_block", "lower", "release", "descend_handle_again",
+                                "grasp_handle_again", "push_closed"})
 
     def script(self):
         task = self.env.task
