@@ -70,6 +70,10 @@ RUN_TAG="${TAG:-}"   # as given: a stage that starts another hands this on (that
 TAG="${RUN_TAG}${DATA:+_$DATA}"
 FROM="${FROM:-}"      # a pretrained_model folder to fine-tune (e.g. checkpoints/afar_cube_handoff); empty: from scratch
 
+run_name() {  # run_name KIND: the run folder of a training stage (outputs/train/<name>)
+    echo "${TASK}_$1${TAG}_s$SEED"
+}
+
 train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
     local name=$1 type=$2 view=$3
     shift 3
@@ -109,9 +113,9 @@ case "${1:-}" in
         for v in points state; do
             [ -d "${DS}_$v" ] || ${BIN}python -m lerobot_bavo.datasets.views --root "$DS" --view "$v"
         done ;;
-    state) train "${TASK}_maniflow_state${TAG}_s$SEED" maniflow state "${@:2}" ;;
-    maniflow) train "${TASK}_maniflow${TAG}_s$SEED" maniflow points "${@:2}" ;;
-    afar) train "${TASK}_afar${TAG}_s$SEED" afar points "${@:2}" ;;
+    state) train "$(run_name maniflow_state)" maniflow state "${@:2}" ;;
+    maniflow) train "$(run_name maniflow)" maniflow points "${@:2}" ;;
+    afar) train "$(run_name afar)" afar points "${@:2}" ;;
     eval)
         run=${2:?usage: eval RUN [STEP]}
         step=${3:-last}
@@ -130,7 +134,7 @@ case "${1:-}" in
         # TRAIN_SECONDS (0, default: no bound; a later call resumes from the last checkpoint)
         method=${2:?usage: recipe-train afar|maniflow [lerobot-train args...]}
         case "$method" in afar|maniflow) ;; *) echo "recipe-train: afar or maniflow, not '$method'" >&2; exit 2 ;; esac
-        run="${TASK}_${method}${TAG}_s$SEED"
+        run=$(run_name "$method")
         ckpt=$(printf %06d "$STOP_AT")
         [ -d "outputs/train/$run/checkpoints/$ckpt" ] && { echo "[recipe-train] $run: step $STOP_AT saved"; exit 0; }
         # the gripper levels the demonstrations hold (part-open ones too: Drawer Stowing's 0.45 and 0.7)
