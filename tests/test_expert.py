@@ -12,6 +12,7 @@ import pytest
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.tasks import TASKS
 from lerobot_bavo.experts import EXPERTS, make_expert
+from lerobot_bavo.experts.cube_handoff import CubeHandoffExpert
 
 SEEDS = (0, 1, 2)
 
@@ -28,16 +29,17 @@ def run_episode(env: BavoEnv, seed: int, expert_seed: int | None = None):
     obs, info = env.reset(seed=seed)
     expert = make_expert(env, seed=expert_seed)
     expert.reset()
-    actions, progress = [], [info["progress"]]
+    actions, progress, phases = [], [info["progress"]], set()
     terminated = truncated = False
     while not (terminated or truncated):
         action = expert.act(obs, info)
+        phases.add(expert.phase)
         assert action.shape == (21,) and np.all(np.isfinite(action))
         assert env.action_space.contains(action.astype(np.float32)), "expert action outside the joint limits"
         actions.append(action.copy())
         obs, reward, terminated, truncated, info = env.step(action)
         progress.append(info["progress"])
-    return np.array(actions), progress, info, terminated, truncated
+    return np.array(actions), progress, info, terminated, truncated, phases
 
 
 @pytest.fixture(scope="module")
@@ -47,8 +49,10 @@ def episodes(env):
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_expert_reaches_m5_under_clean(episodes, env, seed):
-    actions, progress, info, terminated, truncated = episodes[seed]
+    actions, progress, info, terminated, truncated, phases = episodes[seed]
     assert info["is_success"] and terminated and not truncated, (seed, progress[-1], info["milestones"])
+    # every declared contact phase (kept clean of execution noise) is one this episode actually ran
+    assert CubeHandoffExpert.contact_phases <= phases, CubeHandoffExpert.contact_phases - phases
     assert len(actions) < env.max_episode_steps
     # every milestone is passed through, in order, and progress is monotone
     assert progress[0] == 0 and progress[-1] == 5

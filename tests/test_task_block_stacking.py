@@ -286,14 +286,18 @@ def test_expert_reaches_m5_in_order(env, seed):
     expert = make_expert(env)
     expert.reset()
     first_step = {}  # milestone depth -> control step at which it was first reached
+    phases = set()
     while True:
-        obs, reward, terminated, truncated, info = env.step(expert.act(obs, info))
+        action = expert.act(obs, info)
+        phases.add(expert.phase)
+        obs, reward, terminated, truncated, info = env.step(action)
         first_step.setdefault(info["progress"], env.elapsed_steps)
         if terminated or truncated:
             break
     assert info["is_success"] and info["progress"] == 5
     # Each milestone is reached at its own step (none fires together with the previous one).
     assert [d for d in sorted(first_step) if d > 0] == [1, 2, 3, 4, 5]
+    assert expert.contact_phases <= phases, expert.contact_phases - phases  # each declared one is run
     assert env.elapsed_steps < 0.6 * env.task.max_episode_steps
 
 

@@ -311,15 +311,17 @@ def test_expert_reaches_m5(env, seed):
     expert = make_expert(env)
     assert isinstance(expert, DrawerStowingExpert)
     expert.reset()
-    progress = [info["progress"]]
+    progress, phases = [info["progress"]], set()
     terminated = truncated = False
     while not (terminated or truncated):
         action = expert.act(obs, info)
+        phases.add(expert.phase)
         assert env.action_space.contains(action.astype(np.float32))
         obs, _, terminated, truncated, info = env.step(action)
         progress.append(info["progress"])
     assert info["is_success"] and terminated, (seed, progress[-1], expert.phase)
     assert set(progress) == {0, 1, 2, 3, 4, 5}
     assert all(b >= a for a, b in zip(progress, progress[1:]))
+    assert expert.contact_phases <= phases, expert.contact_phases - phases  # each declared one is run
     assert len(progress) - 1 < env.max_episode_steps - 7 * 40  # room for camera recovery
     assert env.task.block_inside(env.data) and env.task.slide(env.data) <= T.CLOSED_SLIDE

@@ -311,9 +311,11 @@ def test_expert_reaches_success(env, seed):
     obs, info = env.reset(seed=seed)
     expert = DustpanSweepingExpert(env)
     expert.reset()
-    reached = []
+    reached, phases = [], set()
     while True:
-        obs, reward, terminated, truncated, info = env.step(expert.act(obs, info))
+        action = expert.act(obs, info)
+        phases.add(expert.phase)
+        obs, reward, terminated, truncated, info = env.step(action)
         if info["progress"] > len(reached):
             reached.extend([env.elapsed_steps] * (info["progress"] - len(reached)))
         if terminated or truncated:
@@ -321,4 +323,5 @@ def test_expert_reaches_success(env, seed):
     assert info["is_success"] and terminated and reward == 1.0
     assert env.elapsed_steps < env.task.max_episode_steps - 280  # room for 7 recovery pauses
     assert reached == sorted(reached) and len(set(reached)) == 5  # milestones one after another
+    assert expert.contact_phases <= phases, expert.contact_phases - phases  # each declared one is run
     assert isinstance(env.task, DustpanSweeping)
