@@ -342,6 +342,21 @@ def test_use_amp_is_bf16_autocast_and_trains_on_cpu():
 COMPILED_CASE = {"maniflow": "maniflow", "afar": "afar_invalid_samples_anchor_subset_fps_prefix"}
 
 
+@pytest.mark.parametrize("kind", ["maniflow", "afar"])
+def test_compile_waits_for_the_first_training_step(kind):
+    """`compile=true` is a training setting: a policy built with it (as `from_pretrained` builds one from a
+    checkpoint trained compiled) keeps eager networks until its first loss computation, which compiles both
+    copies' sub-networks once (checked without running the compiler: `nn.Module.compile` only wraps)."""
+    policy = make_policy(kind, {**CASES[COMPILED_CASE[kind]][1], "compile": True})
+    modules = [m for model in (policy.model, policy.ema_model) for m in policy.compiled_modules(model)]
+    assert modules and all(m._compiled_call_impl is None for m in modules)
+    policy.begin_training_step()
+    wrapped = [m._compiled_call_impl for m in modules]
+    assert all(w is not None for w in wrapped)
+    policy.begin_training_step()  # not wrapped again
+    assert [m._compiled_call_impl for m in modules] == wrapped
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["maniflow", "afar"])
 def test_compile_gives_the_eager_step(kind):

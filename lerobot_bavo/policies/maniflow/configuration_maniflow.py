@@ -200,7 +200,9 @@ class ManiFlowConfig(PreTrainedConfig):
             WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA
             training where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the
             first steps then wait for the compiler (again for each new batch size), and on the CPU it needs a
-            C++ compiler. Parameter names, checkpoints and losses are those of the eager networks.
+            C++ compiler. Parameter names, checkpoints and losses are those of the eager networks. Compiled at
+            the first training step, so a checkpoint trained with it is evaluated (`bavo-eval`,
+            `lerobot-eval`) with eager networks, on any device, without a compiler.
         compile_mode: `torch.compile`'s mode when `compile` is on: "default", "reduce-overhead" (CUDA graphs:
             also removes the launch cost of the kernels left, at the price of fixed input shapes and more GPU
             memory), "max-autotune" or "max-autotune-no-cudagraphs".

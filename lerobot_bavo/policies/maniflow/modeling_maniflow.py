@@ -548,8 +548,10 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self.register_buffer("ignored_state_index", torch.tensor(config.ignored_state_dims, dtype=torch.long),
                              persistent=False)
         self.reset()
-        if config.compile:
-            self._compile(config.compile_mode)
+        # `config.compile` takes effect at the first loss computation (`begin_training_step`), not here, so
+        # loading a checkpoint trained compiled for inference (bavo-eval, lerobot-eval) runs eager networks
+        # and needs no compiler.
+        self._networks_compiled = False
 
     def inference_state_keys(self) -> list[str]:
         """The state-dict entries `select_action` reads: the EMA copy's weights (the trained model's when
@@ -599,8 +601,12 @@ class ManiFlowPolicy(PreTrainedPolicy):
         """Called first by `forward` in training: the weights are about to change (an optimiser step follows),
         so cached inference modulations are forgotten; with CUDA graphs (`compile_mode` "reduce-overhead" or
         "max-autotune") the previous step's graph outputs are declared dead, so the graphs may reuse their
-        memory."""
+        memory. With `compile` on, the first call compiles the networks (training is what compiling is for;
+        inference alone stays eager)."""
         self.invalidate_modulation_cache()
+        if self.config.compile and not self._networks_compiled:
+            self._compile(self.config.compile_mode)
+            self._networks_compiled = True
         if self.config.compile and self.config.compile_mode in ("reduce-overhead", "max-autotune"):
             torch.compiler.cudagraph_mark_step_begin()
 
