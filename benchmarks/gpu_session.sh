@@ -66,6 +66,7 @@ part train_graphs 240 lerobot-train --policy.type=afar --policy.preset=cpu_fast 
     --policy.compile=true --policy.compile_mode=reduce-overhead --wandb.enable=false
 # docs/gpu.md's recipe command as written (paper preset, bf16, batch 512, compiled with CUDA graphs), five steps
 # (5 x 512 of the view's ~2,560 frames: no partial batch), a checkpoint saved, then loaded back and run once
+# (no video: the GPU image has imageio without its ffmpeg plugin, a declared dependency pip would install)
 part recipe_check 450 bash -c "rm -rf /tmp/recipe_check /tmp/recipe_check_eval && lerobot-train --policy.type=afar --policy.preset=paper --policy.device=cuda \
     --policy.use_amp=true --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points \
     --dataset.root=${DATA}_points --batch_size=512 --steps=5 --policy.optimizer_lr=2.8e-4 \
@@ -73,7 +74,7 @@ part recipe_check 450 bash -c "rm -rf /tmp/recipe_check /tmp/recipe_check_eval &
     --policy.compile_mode=reduce-overhead --save_freq=5 --log_freq=1 --seed=1000 \
     --output_dir=/tmp/recipe_check --wandb.enable=false && bavo-eval --policy \
     /tmp/recipe_check/checkpoints/last/pretrained_model --tasks cube_handoff --conditions stage --episodes 1 \
-    --seed 1000 --workers 1 --output-dir /tmp/recipe_check_eval"
+    --seed 1000 --workers 1 --videos 0 --output-dir /tmp/recipe_check_eval"
 part train_defaults 120 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
     --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
     --steps=20 --log_freq=5 --save_checkpoint=false --output_dir=/tmp/train_defaults --wandb.enable=false
