@@ -59,6 +59,10 @@ part tp_cpu_fast_b1024_compile_graphs 300 "${TP[@]}" --preset cpu_fast --batch 1
     --new-policy-arg compile_mode=reduce-overhead
 # the graphed step's losses and gradients against eager (pytest's wheels carried in .device/whl-train: docs/gpu.md)
 part graphs_check 400 python -m pytest -m slow -q -p no:cacheprovider tests/test_training_step.py -k cuda_graphs
+# issue 28's CUDA data-path tests: batches gathered on the GPU equal LeRobot's items collated (every view, with
+# and without delta_timestamps, an episode subset), and lerobot-train on CUDA gathers them there
+part cuda_tests 300 python -m pytest -q -p no:cacheprovider tests/test_fast_dataset.py tests/test_training_defaults.py \
+    -k cuda
 # the recipe's compile setting end to end: lerobot-train with CUDA graphs, a checkpoint saved at the end
 part train_graphs 240 lerobot-train --policy.type=afar --policy.preset=cpu_fast --policy.device=cuda \
     --policy.push_to_hub=false --dataset.repo_id=local/gpu_bench_points --dataset.root=${DATA}_points \
