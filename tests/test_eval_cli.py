@@ -112,6 +112,19 @@ def test_unknown_task_or_condition(tmp_path):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
+def test_videos_without_their_writer_are_refused_before_any_episode(tmp_path, monkeypatch):
+    """Without imageio-ffmpeg, imageio's MP4 writer is PyAV's, which refuses the writer's arguments at the end
+    of the first episode; the run is refused up front instead, naming the package and the way out."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "imageio_ffmpeg" else real(name, *a))
+    with pytest.raises(SystemExit, match="imageio-ffmpeg.*--videos 0"):
+        evaluate("expert", [TASK], ["clean"], episodes=1, seed=0, output_dir=tmp_path / "v", videos=1)
+    assert not (tmp_path / "v").exists()
+
+
 @pytest.mark.parametrize("policy, light", [
     ("expert", True), ("expert-frozen-camera", True),
     (str(REPO / "checkpoints/afar_cube_handoff_sf"), False)])

@@ -8,6 +8,7 @@ the files hold and how resume, locking and the executors behave.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import time
 from pathlib import Path
@@ -253,6 +254,11 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
         raise SystemExit(f"bavo-eval: --point-frame must be base or camera, got {point_frame!r}")
     if output_dir.exists() and not output_dir.is_dir():
         raise SystemExit(f"bavo-eval: --output-dir {output_dir} exists and is not a folder")
+    if videos > 0 and importlib.util.find_spec("imageio_ffmpeg") is None:
+        # checked before any episode runs: the MP4 writer is only called at an episode's end, and imageio's
+        # other MP4 writer (PyAV) refuses its arguments
+        raise SystemExit("bavo-eval: --videos needs the imageio-ffmpeg package (a dependency of "
+                         "lerobot-bavo: pip install imageio-ffmpeg), or pass --videos 0")
     settings: dict = {"seed": seed}
     if policy in EXPERT_POLICIES:
         policy_id = settings["policy"] = policy
