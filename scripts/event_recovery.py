@@ -19,6 +19,15 @@ validation seeds (1000+); test seeds (2000+) are for reporting.
 Prints, per log (its Random-time episodes) or rollout: episodes, successes, then per event index the number of
 events reached, how many were retained (an event cut short by the episode's end has no CVG), the mean event
 CVG (pp) and the mean start step.
+
+`--regained CONDITION` reads the logs' episodes of that condition instead (e.g. `stage`, whose logs carry no
+CVG) and prints, per event index and target, how many events were reached, in how many the camera regained
+the view (the target's visibility V back to >= 0.5 before the next event or the episode's end) and the median
+steps that took: a check that needs only bavo-eval's per-step `visibility`, under any condition.
+
+    python scripts/event_recovery.py --regained stage --task drawer_stowing \
+        --label expert=docs/results/grid_table/runs/expert/0/episodes.jsonl.gz \
+        --label afar=docs/results/grid_table/runs/afar-self-filter/s1000/drawer_stowing/episodes.jsonl.gz
 """
 
 from __future__ import annotations
@@ -47,11 +56,38 @@ def per_event_index(episodes: list[dict]) -> dict[int, dict]:
     return out
 
 
-def read_random_episodes(path: Path, task: str | None) -> list[dict]:
+def view_regained(episodes: list[dict], threshold: float = 0.5) -> dict[tuple[int, str], dict]:
+    """{(event index, target): {"n", "regained", "median_steps" (None if never)}} over the episodes'
+    `events` and per-step `visibility` (bavo-eval's records: `visibility[k]` is V after step k,
+    `visibility[0]` at reset).
+    An event is regained at the first step after its start, and before the next event's start (or the
+    episode's end), whose V is at least `threshold`; steps count from the event's start step."""
+    found: dict[tuple[int, str], list] = defaultdict(list)
+    for episode in episodes:
+        vis = episode.get("visibility") or []
+        events = episode.get("events") or []
+        for k, event in enumerate(events):
+            start = event["start_step"]
+            end = events[k + 1]["start_step"] if k + 1 < len(events) else len(vis)
+            hit = next((t - start for t in range(start + 1, min(end, len(vis)))
+                        if vis[t] is not None and vis[t] >= threshold), None)
+            found[(event["index"], event["target"])].append(hit)
+    out = {}
+    for key in sorted(found):
+        hits = sorted(h for h in found[key] if h is not None)
+        median = None
+        if hits:
+            mid = len(hits) // 2
+            median = float(hits[mid]) if len(hits) % 2 else (hits[mid - 1] + hits[mid]) / 2.0
+        out[key] = {"n": len(found[key]), "regained": len(hits), "median_steps": median}
+    return out
+
+
+def read_episodes(path: Path, task: str | None, condition: str = "random") -> list[dict]:
     from lerobot_bavo.eval.run import read_episode_records
 
     rows = read_episode_records(path)
-    return [r for r in rows if r.get("condition") == "random" and (task is None or r.get("task") == task)]
+    return [r for r in rows if r.get("condition") == condition and (task is None or r.get("task") == task)]
 
 
 def rollout_episodes(policy: str, task: str, condition: str, seeds: range) -> list[dict]:
@@ -77,13 +113,18 @@ def main(argv: list[str] | None = None) -> None:
                     help="roll this checkpoint (or expert) out instead of reading logs")
     ap.add_argument("--condition", default="stage", help="with --policy (default stage)")
     ap.add_argument("--seeds", default="1000-1009", help="with --policy: first-last, inclusive")
+    ap.add_argument("--regained", default=None, metavar="CONDITION",
+                    help="read this condition's episodes and print whether and how fast each event's view "
+                         "was regained (V >= 0.5) instead of CVG")
     args = ap.parse_args(argv)
-    named: list[tuple[str, list[dict]]] = [(str(p), read_random_episodes(p, args.task)) for p in args.logs]
+    condition = args.regained or "random"
+    named: list[tuple[str, list[dict]]] = [(str(p), read_episodes(p, args.task, condition))
+                                           for p in args.logs]
     for item in args.label:
         name, sep, path = item.partition("=")
         if not sep:
             ap.error(f"--label wants NAME=episodes.jsonl, got {item!r}")
-        named.append((name, read_random_episodes(Path(path), args.task)))
+        named.append((name, read_episodes(Path(path), args.task, condition)))
     if args.policy is not None:
         if args.task is None:
             ap.error("--policy needs --task")
@@ -92,6 +133,9 @@ def main(argv: list[str] | None = None) -> None:
         named.append((f"{args.policy} ({args.condition}, seeds {args.seeds})", episodes))
     if not named:
         ap.error("give episodes.jsonl files or --policy")
+    if args.regained:
+        print_regained(named)
+        return
     header = " | ".join(f"event {i}: n / kept / CVG / start" for i in range(args.events))
     print(f"| log | episodes | successes | {header} |")
     print("|---|---|---|" + "---|" * args.events)
@@ -107,6 +151,18 @@ def main(argv: list[str] | None = None) -> None:
             cells.append(f"{s['n']} / {s['retained']} / {cvg} / {s['start_step']:.0f}")
         wins = sum(bool(e.get("success")) for e in episodes)
         print(f"| {name} | {len(episodes)} | {wins} | " + " | ".join(cells) + " |")
+
+
+def print_regained(named: list[tuple[str, list[dict]]]) -> None:
+    print("| log | episodes | successes | event (target) | reached | view regained | median steps |")
+    print("|---|---|---|---|---|---|---|")
+    for name, episodes in named:
+        wins = sum(bool(e.get("success")) for e in episodes)
+        for (index, target), s in view_regained(episodes).items():
+            share = 100.0 * s["regained"] / s["n"]
+            median = "-" if s["median_steps"] is None else f"{s['median_steps']:.0f}"
+            print(f"| {name} | {len(episodes)} | {wins} | {index} ({target}) | {s['n']} | "
+                  f"{s['regained']} ({share:.0f} %) | {median} |")
 
 
 if __name__ == "__main__":
