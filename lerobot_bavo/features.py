@@ -49,6 +49,11 @@ TEACHER_KEYS = (TEACHER_Z0, TEACHER_ZF, TEACHER_VISIBLE, TEACHER_VALID)
 # pose when a `points` training view is made, for the occluder-dropout training recipe
 # (`policies/augment.py`). Not part of a collected dataset.
 TEACHER_OCCLUDER = f"{TEACHER_PREFIX}.occluder"
+# (1,) float32, 1 on frames the demonstrator spent recovering the view after an occlusion event: a copy of
+# `annotation.occlusion_active` made when a `points` training view is made (annotations never reach a policy;
+# LeRobot's processors pass only `observation.*` keys through), for the recovery-weighted training recipe
+# (`--policy.recovery_weight`). Not part of a collected dataset.
+TEACHER_RECOVERING = f"{TEACHER_PREFIX}.recovering"
 
 # Dataset annotations (never reach a policy).
 ANNOTATION_PREFIX = "annotation"

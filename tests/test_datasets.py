@@ -425,7 +425,8 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
                        ("state", {S.OBS_STATE, S.ACTION, S.OBS_ENV_STATE})):
         out = make_view(dataset_root, view, output_root=tmp_path / view)
         assert out.repo_id == f"{REPO}_{view}"
-        derived = {S.TEACHER_OCCLUDER} if view == "points" else set()  # the training-only occluder label
+        # the training-only labels: per point on the occluder, per frame recovering the view
+        derived = {S.TEACHER_OCCLUDER, S.TEACHER_RECOVERING} if view == "points" else set()
         assert set(out.meta.features) - bookkeeping == keep | derived
         reloaded = LeRobotDataset(out.repo_id, root=tmp_path / view, video_backend="pyav")
         assert reloaded.meta.total_episodes == 2 and len(reloaded) == len(src)
@@ -448,6 +449,10 @@ def test_training_views_keep_exactly_what_each_policy_family_reads(dataset_root,
             xyz = b[S.OBS_POINT_CLOUD].numpy().reshape(-1, S.POINT_CHANNELS)[:, :3]
             expected = points_on_occluder(xyz, b[S.ANN_OCCLUDER_POSE].numpy())
             assert a[S.TEACHER_OCCLUDER].numpy().tolist() == expected.astype(np.float32).tolist()
+            # the recovery label is the annotation, frame for frame (and the demo recovers at some frames)
+            recovering = np.asarray(reloaded.hf_dataset[S.TEACHER_RECOVERING], dtype=np.float32).ravel()
+            active = np.asarray(src.hf_dataset[S.ANN_ACTIVE], dtype=np.float32).ravel()
+            assert recovering.tolist() == active.tolist() and 0 < active.sum() < len(active)
         with pytest.raises(FileExistsError, match="exists"):
             make_view(dataset_root, view, output_root=tmp_path / view)
         # how make_view names its default copy

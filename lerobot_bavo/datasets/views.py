@@ -13,7 +13,10 @@ metadata and videos stay consistent):
 
 - `points`: state, action, point cloud and the cached teacher features (`maniflow`, `afar`), plus, for
   base-frame clouds of datasets with `annotation.occluder_pose`, the training-only per-point label
-  `observation.teacher.occluder` (1 on the benchmark occluder) that the occluder-dropout recipe reads;
+  `observation.teacher.occluder` (1 on the benchmark occluder) that the occluder-dropout recipe reads, and
+  for datasets with occlusion annotations the training-only frame label `observation.teacher.recovering`
+  (a copy of `annotation.occlusion_active`: 1 while the demonstrator recovers the view) that
+  `--policy.recovery_weight` reads;
 - `images`: state, action and the active-camera video (`act`, `diffusion`, ...);
 - `state`: state, action and the privileged object poses `observation.environment_state`
   (the privileged-state rung of the failure ladder: `maniflow` without perception).
@@ -90,6 +93,11 @@ def make_view(root: Path, view: str, repo_id: str | None = None, output_root: Pa
     if view == "points" and S.ANN_OCCLUDER_POSE in source.meta.features and point_frame == "base":
         labels = occluder_point_labels(source)
         added[S.TEACHER_OCCLUDER] = (labels, {"dtype": "float32", "shape": [labels.shape[1]], "names": None})
+    if view == "points" and S.ANN_ACTIVE in source.meta.features:
+        from lerobot_bavo.datasets.fast import column_array
+
+        active = column_array(source.hf_dataset.data.column(S.ANN_ACTIVE)).astype(np.float32).reshape(-1, 1)
+        added[S.TEACHER_RECOVERING] = (active, {"dtype": "float32", "shape": [1], "names": None})
     view_ds = modify_features(source, add_features=added or None, remove_features=drop,
                               output_dir=output_root, repo_id=f"{source.repo_id}_{view}")
     restore_default_mode(Path(output_root).glob("videos/*/*/*.mp4"))  # copies keep the source's 0600 mp4s

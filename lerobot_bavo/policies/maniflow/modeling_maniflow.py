@@ -21,7 +21,14 @@ from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_bavo.features import TEACHER_OCCLUDER, TEACHER_VISIBLE, TEACHER_Z0, TEACHER_ZF, unflatten_points
+from lerobot_bavo.features import (
+    TEACHER_OCCLUDER,
+    TEACHER_RECOVERING,
+    TEACHER_VISIBLE,
+    TEACHER_Z0,
+    TEACHER_ZF,
+    unflatten_points,
+)
 from lerobot_bavo.policies.augment import occluder_dropout
 from lerobot_bavo.policies.heap import keep_freed_heap
 
@@ -783,6 +790,23 @@ class ManiFlowPolicy(PreTrainedPolicy):
         keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
         return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p)
 
+    def recovery_weights(self, batch: dict[str, Tensor], b: int) -> Tensor | None:
+        """(B,) loss weights: `recovery_weight` for the samples whose current frame the demonstrator spent
+        recovering the view (the training-only label of the `points` view, last observation step), 1 for the
+        others; None when `recovery_weight` is 1 (nothing to weight)."""
+        w = self.config.recovery_weight
+        if w == 1.0:
+            return None
+        if TEACHER_RECOVERING not in batch:
+            raise KeyError(
+                f"`recovery_weight` needs the per-frame label '{TEACHER_RECOVERING}' in the batch: make the "
+                "training view again with `python -m lerobot_bavo.datasets.views --view points` (a dataset "
+                "with occlusion annotations), or set --policy.recovery_weight=1."
+            )
+        recovering = batch[TEACHER_RECOVERING].reshape(b, -1)[:, -1] > 0.5
+        return torch.where(recovering, torch.full_like(recovering, w, dtype=torch.float32),
+                           torch.ones_like(recovering, dtype=torch.float32))
+
     def flow_loss(self, points: Tensor, states: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """ManiFlow's objective on a shared context, given as its point tokens (B, To, N, Dp) and state
         features (B, To, Ds) (`ManiFlowModel.observation_tokens`; the encoder runs once, with gradients).
@@ -823,6 +847,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
         mask = None
         if cfg.do_mask_loss_for_padding and "action_is_pad" in batch:
             mask = (~batch["action_is_pad"]).to(dtype)[:, :, None].expand_as(x1)
+        weights = self.recovery_weights(batch, b)
+        if weights is not None:  # a weighted mean: each sample's elements count `weight` times
+            mask = (torch.ones_like(x1) if mask is None else mask) * weights.to(dtype)[:, None, None]
 
         def mse(pred: Tensor, target: Tensor, sl: slice) -> Tensor:
             err = (pred - target) ** 2

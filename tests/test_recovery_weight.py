@@ -1,0 +1,71 @@
+"""`--policy.recovery_weight`: the recovery frames' weight in ManiFlow's / A-FAR's action losses (a weighted
+mean over samples), read from the training-only label `observation.teacher.recovering` of the points view."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from lerobot.configs import FeatureType, PolicyFeature
+
+from lerobot_bavo.features import TEACHER_RECOVERING
+from lerobot_bavo.policies import ManiFlowConfig, ManiFlowPolicy
+
+N_POINTS = 8
+
+
+def make_policy(**overrides) -> ManiFlowPolicy:
+    inputs = {"observation.point_cloud": PolicyFeature(FeatureType.STATE, (N_POINTS * 6,)),
+              "observation.state": PolicyFeature(FeatureType.STATE, (21,))}
+    outputs = {"action": PolicyFeature(FeatureType.ACTION, (21,))}
+    cfg = ManiFlowConfig(input_features=inputs, output_features=outputs, preset="cpu_fast", device="cpu",
+                         points_per_step=N_POINTS, **overrides)
+    torch.manual_seed(0)
+    return ManiFlowPolicy(cfg)
+
+
+def make_batch(policy: ManiFlowPolicy, b: int = 4) -> dict:
+    g = torch.Generator().manual_seed(1)
+    to, h = policy.config.n_obs_steps, policy.config.horizon
+    return {"observation.point_cloud": torch.randn(b, to, N_POINTS * 6, generator=g),
+            "observation.state": torch.randn(b, to, 21, generator=g),
+            "action": torch.randn(b, h, 21, generator=g),
+            "action_is_pad": torch.zeros(b, h, dtype=torch.bool)}
+
+
+def loss_of(policy: ManiFlowPolicy, batch: dict) -> float:
+    torch.manual_seed(123)  # the same noise, times and consistency draws for every call
+    with torch.no_grad():
+        return float(policy.forward(batch)[0])
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf])
+def test_a_weight_must_be_finite_and_positive(bad):
+    with pytest.raises(ValueError, match="recovery_weight"):
+        make_policy(recovery_weight=bad)
+
+
+def test_weights_by_hand_from_the_last_observation_step():
+    policy = make_policy(recovery_weight=3.0)
+    # (B, To, 1); the last observation step counts
+    labels = torch.tensor([[[0.0], [1.0]], [[1.0], [0.0]], [[1.0], [1.0]]])
+    assert policy.recovery_weights({TEACHER_RECOVERING: labels}, 3).tolist() == [3.0, 1.0, 3.0]
+    with pytest.raises(KeyError, match="recovering"):
+        policy.recovery_weights({}, 3)
+    assert make_policy().recovery_weights({}, 3) is None  # weight 1: nothing to read, no label needed
+
+
+def test_uniform_weights_leave_the_loss_as_it_is_and_uneven_ones_change_it():
+    plain = make_policy()
+    weighted = make_policy(recovery_weight=4.0)
+    weighted.load_state_dict(plain.state_dict())
+    batch = make_batch(plain)
+    to = plain.config.n_obs_steps
+    reference = loss_of(plain, batch)
+    for every in (0.0, 1.0):  # a weighted mean with equal weights is the mean
+        labels = torch.full((4, to, 1), every)
+        assert loss_of(weighted, {**batch, TEACHER_RECOVERING: labels}) == pytest.approx(reference, rel=1e-5)
+    labels = torch.zeros(4, to, 1)
+    labels[0, -1] = 1.0
+    assert loss_of(weighted, {**batch, TEACHER_RECOVERING: labels}) != pytest.approx(reference, rel=1e-4)
