@@ -69,3 +69,28 @@ def test_uniform_weights_leave_the_loss_as_it_is_and_uneven_ones_change_it():
     labels = torch.zeros(4, to, 1)
     labels[0, -1] = 1.0
     assert loss_of(weighted, {**batch, TEACHER_RECOVERING: labels}) != pytest.approx(reference, rel=1e-4)
+
+
+def test_occluder_dropout_can_spare_the_recovery_frames():
+    """With `occluder_dropout_in_recovery=false` a recovery frame keeps the panel's points where they are
+    even at dropout probability 1; the other frames lose them, as with the recipe."""
+    from lerobot_bavo.features import TEACHER_OCCLUDER
+
+    policy = make_policy(occluder_dropout=1.0, occluder_dropout_in_recovery=False)
+    policy.config.points_per_step = 4
+    n = N_POINTS
+    cloud = torch.arange(2 * 2 * n * 6, dtype=torch.float32).reshape(2, 2, n * 6)
+    labels = torch.zeros(2, 2, n)
+    labels[:, :, :3] = 1  # the first three points are the panel's
+    recovering = torch.tensor([[[0.0], [1.0]], [[1.0], [0.0]]])  # sample 0 recovers (its last step), 1 not
+    batch = {"observation.point_cloud": cloud, TEACHER_OCCLUDER: labels, TEACHER_RECOVERING: recovering}
+    seen = policy.training_batch(batch)["observation.point_cloud"].reshape(2, 2, n, 6)
+    assert torch.equal(seen[0], cloud.reshape(2, 2, n, 6)[0])  # kept as stored
+    assert torch.equal(seen[1, :, :5], cloud.reshape(2, 2, n, 6)[1, :, 3:])  # panel moved behind
+    with pytest.raises(KeyError, match="recovering"):
+        policy.training_batch({"observation.point_cloud": cloud, TEACHER_OCCLUDER: labels})
+    # the recipe's default drops the panel in recovery frames too
+    recipe = make_policy(occluder_dropout=1.0)
+    recipe.config.points_per_step = 4
+    seen = recipe.training_batch(batch)["observation.point_cloud"].reshape(2, 2, n, 6)
+    assert torch.equal(seen[0, :, :5], cloud.reshape(2, 2, n, 6)[0, :, 3:])

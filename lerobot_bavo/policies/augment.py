@@ -50,18 +50,22 @@ def reorder_points(x: Tensor, order: Tensor) -> Tensor:
 
 
 def occluder_dropout(batch: dict, labels: Tensor, point_keys: list[str], p: float,
-                     generator: torch.Generator | None = None) -> dict:
+                     generator: torch.Generator | None = None, keep: Tensor | None = None) -> dict:
     """A copy of `batch` in which, for each sample with probability `p`, the labelled points of every key in
     `point_keys` go behind the others (see the module docstring).
 
     Args:
         labels: (B, To, N) or (B, N): True on the occluder's points.
         point_keys: the per-point features to reorder together (the cloud and point-aligned teacher targets).
+        keep: (B,) bool, samples whose occluder points always stay (e.g. the frames the demonstrator spends
+            recovering the view, whose camera motion the panel explains); None: every sample may be chosen.
     """
     if labels.ndim == 2:
         labels = labels[:, None]
     b = labels.shape[0]
     chosen = torch.rand(b, generator=generator, device=labels.device) < p
+    if keep is not None:
+        chosen = chosen & ~keep.reshape(b).bool()
     order = points_last_order(labels.bool(), chosen)
     out = dict(batch)
     for key in point_keys:

@@ -196,6 +196,13 @@ class ManiFlowConfig(PreTrainedConfig):
             of the `points` training view, and `points_per_step` below the cloud's N (reading all points, the
             moved points are still read: training refuses it); 0 (default) turns it off. Inference is
             unchanged.
+        occluder_dropout_in_recovery: Whether occluder dropout may also drop the panel from the samples whose
+            frame the demonstrator spent recovering the view (default True, the recipe's). False keeps the
+            panel in those samples (training-only label `observation.teacher.recovering`): there the panel
+            is what the camera moves for, so dropping it leaves the recovery explained only by when in the
+            task it happens (docs/results/random_time.md: the learned cameras move at the Stage events'
+            phases, not because the target is hidden). Dropout elsewhere still hides the panel as a position
+            cue.
         recovery_weight: Weight, in the flow-matching and consistency losses, of the training samples whose
             frame the demonstrator spent recovering the view after an occlusion event (the training-only
             label `annotation.occlusion_active` of the `points` view), against 1 for every other sample.
@@ -278,6 +285,7 @@ class ManiFlowConfig(PreTrainedConfig):
 
     # Training-time augmentation and sample weighting.
     occluder_dropout: float = 0.0
+    occluder_dropout_in_recovery: bool = True
     recovery_weight: float = 1.0
 
     # Training speed (docs/gpu.md).

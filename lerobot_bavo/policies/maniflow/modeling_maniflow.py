@@ -767,7 +767,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
     def training_batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The batch a training step reads: with `occluder_dropout` > 0 (training mode only), some samples'
-        occluder points moved behind the points the policy reads (`policies/augment.occluder_dropout`)."""
+        occluder points moved behind the points the policy reads (`policies/augment.occluder_dropout`), never
+        those of recovery frames with `occluder_dropout_in_recovery` false."""
         p = self.config.occluder_dropout
         if not (self.training and p > 0 and self.config.uses_point_cloud):
             return batch
@@ -787,8 +788,18 @@ class ManiFlowPolicy(PreTrainedPolicy):
                 "nothing (measured: Drawer Stowing at 256 of 256 points lost Clean as without dropout). Read "
                 "fewer points (--policy.points_per_step) or set --policy.occluder_dropout=0."
             )
+        keep = None
+        if not self.config.occluder_dropout_in_recovery:
+            if TEACHER_RECOVERING not in batch:
+                raise KeyError(
+                    "`occluder_dropout_in_recovery=false` needs the per-frame label "
+                    f"'{TEACHER_RECOVERING}' in the batch: make the training view again with `python -m "
+                    "lerobot_bavo.datasets.views --view points`, or leave "
+                    "--policy.occluder_dropout_in_recovery at true."
+                )
+            keep = batch[TEACHER_RECOVERING].reshape(len(batch[TEACHER_RECOVERING]), -1)[:, -1] > 0.5
         keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
-        return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p)
+        return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p, keep=keep)
 
     def recovery_weights(self, batch: dict[str, Tensor], b: int) -> Tensor | None:
         """(B,) loss weights: `recovery_weight` for the samples whose current frame the demonstrator spent
