@@ -205,11 +205,11 @@ class ManiFlowConfig(PreTrainedConfig):
             cue.
         recovery_weight: Weight, in the flow-matching and consistency losses, of the training samples whose
             frame the demonstrator spent recovering the view after an occlusion event (the training-only
-            label `annotation.occlusion_active` of the `points` view), against 1 for every other sample.
-            Why: the learned cameras regain the view far less often than the expert at some events
-            (docs/results/first_grasp.md, "Where Drawer Stowing's Stage episodes stop"), though those frames
-            are a sixth of the Stage demonstrations (17 % on Drawer Stowing). 1 (default) weights all samples
-            alike; inference is unchanged.
+            label `observation.teacher.recovering` of the `points` view, a copy of the dataset's
+            `annotation.occlusion_active`), against 1 for every other sample. Why: the learned cameras regain
+            the view far less often than the expert at some events (docs/results/first_grasp.md, "Where
+            Drawer Stowing's Stage episodes stop"). 1 (default) weights all samples alike; inference is
+            unchanged.
         compile: Compile the networks with `torch.compile` (point and state encoders, DiT-X, and A-FAR's
             WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA
             training where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the
