@@ -516,6 +516,19 @@ class ManiFlowModel(nn.Module):
 # ------------------------------------------------------------------------------------------------------------
 
 
+def recovering_frames(batch: dict[str, Tensor], option: str, opt_out: str) -> Tensor:
+    """(B,) bool: the samples whose current frame (last observation step) the demonstrator spent recovering
+    the view in, from the training-only label of the `points` view; a KeyError naming `option` if missing."""
+    if TEACHER_RECOVERING not in batch:
+        raise KeyError(
+            f"{option} needs the per-frame label '{TEACHER_RECOVERING}' in the batch: make the training view "
+            f"again with `python -m lerobot_bavo.datasets.views --view points` (a dataset with occlusion "
+            f"annotations), or {opt_out}."
+        )
+    label = batch[TEACHER_RECOVERING]
+    return label.reshape(label.shape[0], -1)[:, -1] > 0.5
+
+
 class ManiFlowPolicy(PreTrainedPolicy):
     """ManiFlow policy (consistency flow matching with an EMA teacher, 1-2 step Euler inference).
 
@@ -790,14 +803,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
             )
         keep = None
         if not self.config.occluder_dropout_in_recovery:
-            if TEACHER_RECOVERING not in batch:
-                raise KeyError(
-                    "`occluder_dropout_in_recovery=false` needs the per-frame label "
-                    f"'{TEACHER_RECOVERING}' in the batch: make the training view again with `python -m "
-                    "lerobot_bavo.datasets.views --view points`, or leave "
-                    "--policy.occluder_dropout_in_recovery at true."
-                )
-            keep = batch[TEACHER_RECOVERING].reshape(len(batch[TEACHER_RECOVERING]), -1)[:, -1] > 0.5
+            keep = recovering_frames(batch, "`occluder_dropout_in_recovery=false`",
+                                     "leave --policy.occluder_dropout_in_recovery at true")
         keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
         return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p, keep=keep)
 
@@ -808,13 +815,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         w = self.config.recovery_weight
         if w == 1.0:
             return None
-        if TEACHER_RECOVERING not in batch:
-            raise KeyError(
-                f"`recovery_weight` needs the per-frame label '{TEACHER_RECOVERING}' in the batch: make the "
-                "training view again with `python -m lerobot_bavo.datasets.views --view points` (a dataset "
-                "with occlusion annotations), or set --policy.recovery_weight=1."
-            )
-        recovering = batch[TEACHER_RECOVERING].reshape(b, -1)[:, -1] > 0.5
+        recovering = recovering_frames(batch, "`recovery_weight`", "set --policy.recovery_weight=1")
         return torch.where(recovering, torch.full_like(recovering, w, dtype=torch.float32),
                            torch.ones_like(recovering, dtype=torch.float32))
 
