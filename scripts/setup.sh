@@ -66,7 +66,13 @@ extras="test,ray"  # the test suite runs the Ray executor tests too (a local Ray
 want=$( (cat pyproject.toml; echo "$extras") | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! .venv/bin/python -c 'import lerobot_bavo' 2>/dev/null; then
     echo "[setup] installing lerobot-bavo and its dependencies into .venv (first run downloads PyTorch; several minutes)"
-    .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e ".[$extras]"
+    if ! { .venv/bin/python -m pip install -q --upgrade pip && .venv/bin/python -m pip install -q -e ".[$extras]"; }; then
+        # pip's own message for a full disk is one OSError line among many; say what to free and where
+        free_venv=$(df -Ph .venv | awk 'NR==2 {print $4}')
+        free_tmp=$(df -Ph "${TMPDIR:-/tmp}" | awk 'NR==2 {print $4}')
+        echo "error: installing into .venv failed (above). A first install takes about 7 GB (PyTorch with CUDA);" \
+             "free now: $free_venv where .venv is, $free_tmp in ${TMPDIR:-/tmp} (pip's build space)." >&2
+        exit 1
+    fi
     echo "$want" > "$stamp"
 fi
