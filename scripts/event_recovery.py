@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import statistics
 from collections import defaultdict
 from pathlib import Path
 
@@ -74,11 +75,8 @@ def view_regained(episodes: list[dict], threshold: float = 0.5) -> dict[tuple[in
             found[(event["index"], event["target"])].append(hit)
     out = {}
     for key in sorted(found):
-        hits = sorted(h for h in found[key] if h is not None)
-        median = None
-        if hits:
-            mid = len(hits) // 2
-            median = float(hits[mid]) if len(hits) % 2 else (hits[mid - 1] + hits[mid]) / 2.0
+        hits = [h for h in found[key] if h is not None]
+        median = float(statistics.median(hits)) if hits else None
         out[key] = {"n": len(found[key]), "regained": len(hits), "median_steps": median}
     return out
 

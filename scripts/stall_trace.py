@@ -92,6 +92,23 @@ def summarise(steps: list[dict], commands: list[np.ndarray], rest_z: float) -> d
     }
 
 
+def step_record(env, info: dict) -> dict:
+    """What `summarise` reads of one step (world frame, m): milestone progress, the left fingers' contact
+    with the block (M3's test), the block's height, its distance outside the drawer's opening, the drawer's
+    slide, and whether the target is hidden (V < 0.5) by an occlusion event."""
+    base = env.unwrapped
+    task = base.task
+    lo, hi = task.interior_opening(base.data)
+    block = base.data.xpos[task.block_body]
+    occ = info.get("occlusion")
+    return {
+        "progress": info["progress"], "left_touch": task.evaluate(base.model, base.data)["m3"],
+        "block_z": float(block[2]), "outside": outside_distance(block[:2], lo, hi),
+        "slide": task.slide(base.data),
+        "occluded": bool(occ is not None and occ["visibility"] is not None and occ["visibility"] < 0.5),
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--policy", required=True)
@@ -107,15 +124,7 @@ def main() -> None:
     steps: list[dict] = []
 
     def on_step(info):
-        lo, hi = task.interior_opening(base.data)
-        block = base.data.xpos[task.block_body]
-        now = task.evaluate(base.model, base.data)
-        occ = info.get("occlusion")
-        steps.append({
-            "progress": info["progress"], "left_touch": now["m3"], "block_z": float(block[2]),
-            "outside": outside_distance(block[:2], lo, hi), "slide": task.slide(base.data),
-            "occluded": bool(occ is not None and occ["visibility"] is not None and occ["visibility"] < 0.5),
-        })
+        steps.append(step_record(env, info))
 
     rows = []
     if args.output:

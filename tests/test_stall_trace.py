@@ -49,11 +49,7 @@ def test_the_expert_lifts_the_block_after_m3():
     task, steps = env.unwrapped.task, []
 
     def on_step(info):
-        lo, hi = task.interior_opening(env.unwrapped.data)
-        block = env.unwrapped.data.xpos[task.block_body]
-        steps.append({"progress": info["progress"], "left_touch": task.evaluate(env.model, env.data)["m3"],
-                      "block_z": float(block[2]), "outside": stall_trace.outside_distance(block[:2], lo, hi),
-                      "slide": task.slide(env.data), "occluded": False})
+        steps.append(stall_trace.step_record(env, info))
 
     try:
         env.reset(seed=1000)
