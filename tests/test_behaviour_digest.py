@@ -46,7 +46,11 @@ ROLLOUT_DIGESTS = {
     "drawer_stowing/clean": "eecc433bb3a9869ae39671749b0d0d52a4e315b848d7b475c214065e70a2dc35",
     "drawer_stowing/stage": "e75412044f7fe671a5a4064c8a4e9b4a5762d3cb84a7b97d280b08b54205da34",
     "drawer_stowing/random": "eadee7b685fd255ed85edd16ee1f56db4a22e5aac28d90a52972c04b0892d415",
-    "slide_retrieval/clean": "8ded6e4aa35184639d96282fa3ff3a7c0f857e74ffa01354a41c492b5b9cc44a",
+    # Two accepted values, from the same code: the first pinned on the earlier machines, the second measured
+    # on an AMD EPYC machine without AVX-512 (2026-11-28), where only this episode's bytes differ (the other
+    # 17 pins hold). The CPU-dependent part (llvmpipe's JIT or NumPy's SIMD dispatch) is not isolated yet.
+    "slide_retrieval/clean": ("8ded6e4aa35184639d96282fa3ff3a7c0f857e74ffa01354a41c492b5b9cc44a",
+                              "893d67dd12f399484bbaf259b39d4879d684d86c3f7b7a1dbca32cf473579b6f"),
     "slide_retrieval/stage": "8a7abeaf7bc0ed735a2d9ab2c5adf6d2a182192321f09b98773a1da967ddcce8",
     "slide_retrieval/random": "d6559ecfb68ca45e1f4307df91ee0c2eb3172be385f187577db9903ce6c0c762",
     "dustpan_sweeping/clean": "e33893126575c440151be675322e272affc639c6eee29b67e4e66b73f95f9a28",
@@ -90,8 +94,9 @@ def _check(table: dict, key: str, digest: str) -> None:
     if PRINT:
         print(f"    {key!r}: {digest!r},")
         return
-    assert digest == table[key], (f"behaviour changed for {key}: {digest} != pinned {table[key]} "
-                                  "(re-pin with BAVO_DIGEST_PRINT=1 only if the change is deliberate)")
+    pinned = table[key] if isinstance(table[key], tuple) else (table[key],)  # a tuple: one per CPU family
+    assert digest in pinned, (f"behaviour changed for {key}: {digest} not in pinned {pinned} "
+                              "(re-pin with BAVO_DIGEST_PRINT=1 only if the change is deliberate)")
 
 
 def _occlusion_fields(info: dict):
