@@ -50,10 +50,10 @@ def test_weights_by_hand_from_the_last_observation_step():
     policy = make_policy(recovery_weight=3.0)
     # (B, To, 1); the last observation step counts
     labels = torch.tensor([[[0.0], [1.0]], [[1.0], [0.0]], [[1.0], [1.0]]])
-    assert policy.recovery_weights({TEACHER_RECOVERING: labels}, 3).tolist() == [3.0, 1.0, 3.0]
+    assert policy.recovery_weights({TEACHER_RECOVERING: labels}).tolist() == [3.0, 1.0, 3.0]
     with pytest.raises(KeyError, match="recovering"):
-        policy.recovery_weights({}, 3)
-    assert make_policy().recovery_weights({}, 3) is None  # weight 1: nothing to read, no label needed
+        policy.recovery_weights({})
+    assert make_policy().recovery_weights({}) is None  # weight 1: nothing to read, no label needed
 
 
 def test_uniform_weights_leave_the_loss_as_it_is_and_uneven_ones_change_it():

@@ -808,7 +808,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         keys = [self.config.observation_key] + [k for k in POINT_ALIGNED_TEACHER_KEYS if k in batch]
         return occluder_dropout(batch, batch[TEACHER_OCCLUDER] > 0.5, keys, p, keep=keep)
 
-    def recovery_weights(self, batch: dict[str, Tensor], b: int) -> Tensor | None:
+    def recovery_weights(self, batch: dict[str, Tensor]) -> Tensor | None:
         """(B,) loss weights: `recovery_weight` for the samples whose current frame the demonstrator spent
         recovering the view (the training-only label of the `points` view, last observation step), 1 for the
         others; None when `recovery_weight` is 1 (nothing to weight)."""
@@ -859,7 +859,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         mask = None
         if cfg.do_mask_loss_for_padding and "action_is_pad" in batch:
             mask = (~batch["action_is_pad"]).to(dtype)[:, :, None].expand_as(x1)
-        weights = self.recovery_weights(batch, b)
+        weights = self.recovery_weights(batch)
         if weights is not None:  # a weighted mean: each sample's elements count `weight` times
             mask = (torch.ones_like(x1) if mask is None else mask) * weights.to(dtype)[:, None, None]
 
