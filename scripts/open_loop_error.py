@@ -19,6 +19,7 @@ state by as much as the demonstrator did, below 1 when it lags.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from pathlib import Path
 
@@ -35,7 +36,15 @@ def main() -> None:
     ap.add_argument("--episodes", default="0,1,2", help="comma-separated episode indices (default 0,1,2)")
     ap.add_argument("--every", type=int, default=25, help="evaluate every k-th frame (default 25)")
     ap.add_argument("--seed", type=int, default=0, help="noise seed of the sampled chunks (default 0)")
+    ap.add_argument("--draws", type=int, default=1,
+                    help="chunks sampled per frame; >= 2 also prints their spread (default 1)")
+    ap.add_argument("--noise-scale", type=float, default=None,
+                    help="sample at this noise_scale instead of the checkpoint's (default: the checkpoint's)")
     args = ap.parse_args()
+    if args.draws < 1:
+        ap.error(f"--draws must be >= 1, got {args.draws}")
+    if args.noise_scale is not None and not (math.isfinite(args.noise_scale) and args.noise_scale >= 0):
+        ap.error(f"--noise-scale must be a finite number >= 0, got {args.noise_scale}")
 
     import pandas as pd
     import torch
@@ -43,12 +52,14 @@ def main() -> None:
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
     import lerobot_bavo.policies  # noqa: F401  (registers the policy types)
-    from lerobot_bavo.sim.constants import GRIPPER_INDICES
+    from lerobot_bavo.sim.constants import CAMERA_ARM, GRIPPER_INDICES
 
     torch.set_num_threads(1)
     path = Path(args.policy)
     cfg = PreTrainedConfig.from_pretrained(path)
     cfg.device = "cpu"
+    if args.noise_scale is not None:
+        cfg.noise_scale = args.noise_scale
     policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
     pre, post = make_pre_post_processors(policy_cfg=cfg, pretrained_path=str(path))
     obs_keys = list(cfg.input_features)
@@ -57,7 +68,8 @@ def main() -> None:
     files = sorted(Path(args.root, "data").rglob("*.parquet"))
     df = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
     joints = [i for i in range(21) if i not in GRIPPER_INDICES]
-    errs_j, errs_g, lead_pred, lead_true = [], [], [], []
+    arm = [i for i in joints if i < CAMERA_ARM.start]  # the two manipulation arms' 12 joints
+    errs_j, errs_g, lead_pred, lead_true, spreads, errs_arm = [], [], [], [], [], []
     gen = torch.Generator().manual_seed(args.seed)
     for ep in (int(e) for e in args.episodes.split(",")):
         rows = df[df["episode_index"] == ep].sort_values("frame_index")
@@ -70,19 +82,29 @@ def main() -> None:
             batch = {k: torch.from_numpy(cols[k][window])[None] for k in obs_keys}
             batch["task"] = [""]
             batch = pre(batch)
-            with torch.inference_mode():
-                chunk = policy.predict_action_chunk(batch, generator=gen)
-            pred = post(chunk).squeeze(0).numpy()
             true = cols["action"][np.clip(np.arange(i, i + n_exec), 0, n - 1)]
-            errs_j.append(np.abs(pred[:, joints] - true[:, joints]).mean())
-            errs_g.append(np.abs(pred[:, list(GRIPPER_INDICES)] - true[:, list(GRIPPER_INDICES)]).mean())
             state = cols["observation.state"][i]
-            lead_pred.append((pred[:, joints] - state[joints]).ravel())
-            lead_true.append((true[:, joints] - state[joints]).ravel())
+            draws = []
+            for _ in range(args.draws):
+                with torch.inference_mode():
+                    chunk = policy.predict_action_chunk(batch, generator=gen)
+                pred = post(chunk).squeeze(0).numpy()
+                draws.append(pred)
+                errs_j.append(np.abs(pred[:, joints] - true[:, joints]).mean())
+                errs_arm.append(np.abs(pred[:, arm] - true[:, arm]).mean())
+                errs_g.append(np.abs(pred[:, list(GRIPPER_INDICES)] - true[:, list(GRIPPER_INDICES)]).mean())
+                lead_pred.append((pred[:, joints] - state[joints]).ravel())
+                lead_true.append((true[:, joints] - state[joints]).ravel())
+            if args.draws > 1:
+                spreads.append(np.stack(draws)[:, :, arm].std(axis=0).mean())
     lp, lt = np.concatenate(lead_pred), np.concatenate(lead_true)
     slope = float(lp @ lt / max(lt @ lt, 1e-12))
     print(f"{path}: {len(errs_j)} chunks; joint MAE {np.mean(errs_j):.4f} rad (max {np.max(errs_j):.4f}); "
-          f"gripper MAE {np.mean(errs_g):.3f}; lead slope {slope:.2f}")
+          f"gripper MAE {np.mean(errs_g):.3f}; lead slope {slope:.2f}; "
+          f"noise_scale {policy.config.noise_scale}")
+    if spreads:
+        print(f"manipulation arms: spread across {args.draws} draws {1000 * np.mean(spreads):.1f} mrad, "
+              f"error per draw {1000 * np.mean(errs_arm):.1f} mrad")
 
 
 if __name__ == "__main__":

@@ -48,7 +48,10 @@ ROLLOUT_DIGESTS = {
     "drawer_stowing/random": "eadee7b685fd255ed85edd16ee1f56db4a22e5aac28d90a52972c04b0892d415",
     # Two accepted values, from the same code: the first pinned on the earlier machines, the second measured
     # on an AMD EPYC machine without AVX-512 (2026-11-28), where only this episode's bytes differ (the other
-    # 17 pins hold). The CPU-dependent part (llvmpipe's JIT or NumPy's SIMD dispatch) is not isolated yet.
+    # 17 pins hold). Not isolated: on the AMD machine neither llvmpipe's vector width (LP_NATIVE_VECTOR_WIDTH
+    # 128 against its 256) nor NumPy's AVX2 / FMA3 dispatch (NPY_DISABLE_CPU_FEATURES) changes any byte of
+    # this episode, so what is left is code only an AVX-512 machine runs (NumPy's AVX512_SKX loops, LLVM's
+    # AVX-512 code in llvmpipe): check there with NPY_DISABLE_CPU_FEATURES="AVX512F AVX512_SKX".
     "slide_retrieval/clean": ("8ded6e4aa35184639d96282fa3ff3a7c0f857e74ffa01354a41c492b5b9cc44a",
                               "893d67dd12f399484bbaf259b39d4879d684d86c3f7b7a1dbca32cf473579b6f"),
     "slide_retrieval/stage": "8a7abeaf7bc0ed735a2d9ab2c5adf6d2a182192321f09b98773a1da967ddcce8",

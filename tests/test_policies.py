@@ -764,6 +764,30 @@ def test_sampled_chunks_are_clipped_to_the_normalised_data_range():
         make_maniflow(normalization_mapping={"VISUAL": "IDENTITY", "STATE": "MIN_MAX", "ACTION": "MEAN_STD"})
 
 
+@pytest.mark.parametrize("make", [make_maniflow, make_afar], ids=["maniflow", "afar"])
+def test_noise_scale_scales_the_starting_noise_only(make):
+    """`noise_scale` s samples exactly what an explicit start s * z gives, z being the standard draw the same
+    generator makes (so 1 is the old sampler, bit for bit); at 0 the chunk no longer depends on the draw."""
+    torch.manual_seed(0)
+    scaled, plain = make(noise_scale=0.5, binary_action_dims=()), make(binary_action_dims=())
+    randomize_zero_init(scaled, seed=0)
+    plain.load_state_dict(scaled.state_dict())
+    batch = synthetic_batch(b=2, teacher=False)
+    z = torch.randn(2, 16, ACTION_DIM, generator=torch.Generator().manual_seed(7))
+    drawn = scaled.generate_actions(batch, generator=torch.Generator().manual_seed(7))
+    torch.testing.assert_close(drawn, plain.generate_actions(batch, noise=0.5 * z), rtol=0, atol=0)
+    torch.testing.assert_close(plain.generate_actions(batch, generator=torch.Generator().manual_seed(7)),
+                               plain.generate_actions(batch, noise=z), rtol=0, atol=0)
+    assert not torch.allclose(drawn, plain.generate_actions(batch, noise=z))
+    scaled.config.noise_scale = 0.0
+    a = scaled.generate_actions(batch, generator=torch.Generator().manual_seed(1))
+    torch.testing.assert_close(a, scaled.generate_actions(batch, generator=torch.Generator().manual_seed(2)),
+                               rtol=0, atol=0)
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="noise_scale"):
+            make(noise_scale=bad)
+
+
 # ignored_state_dims (issue 27's "state without the camera-arm joints" variant)
 # -----------------------------------------------------------------------------------------------------------
 

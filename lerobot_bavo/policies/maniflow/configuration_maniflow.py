@@ -143,6 +143,15 @@ class ManiFlowConfig(PreTrainedConfig):
             episodes): 2 steps SR 10 / TPS 53, 10 steps 35 / 75, 20 steps 45 / 75. The paper does not fix it.
             A checkpoint's config.json keeps the value it was trained with (`--policy.num_inference_steps=N`
             in lerobot-eval overrides it).
+        noise_scale: Standard deviation of the Gaussian noise the Euler integration starts from at inference
+            (a sampling temperature; training always draws standard noise). 1 (default) samples the learned
+            distribution; below 1 the sample moves towards the flow's deterministic path from the noise's
+            mean (0: no noise, the same chunk for the same observation). Why: on the grasp-limited tasks two
+            draws for the same observation differ by about as much as a draw differs from the demonstrated
+            action, and this tests whether that spread costs grasps (at 0.5 it did not; the fit's own bias
+            does: docs/results/sampling_noise.md). A checkpoint without the field samples at 1;
+            `--policy.noise_scale=X` in lerobot-eval, or the field in a copy's config.json for bavo-eval,
+            sets it.
         use_ema_for_inference: Predict actions with the EMA copy (ManiFlow's eval model). The EMA copy is
         always
             kept, since it is the consistency teacher.
@@ -260,6 +269,7 @@ class ManiFlowConfig(PreTrainedConfig):
 
     # Inference.
     num_inference_steps: int = 10
+    noise_scale: float = 1.0
     use_ema_for_inference: bool = True
     clip_actions: bool = True
     binary_action_dims: tuple[int, ...] | None = None
@@ -327,6 +337,8 @@ class ManiFlowConfig(PreTrainedConfig):
             raise ValueError(f"`point_channels` must be 3 (xyz) or 6 (xyz + rgb). Got {self.point_channels}.")
         if self.num_inference_steps < 1:
             raise ValueError(f"`num_inference_steps` must be >= 1. Got {self.num_inference_steps}.")
+        if not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
+            raise ValueError(f"`noise_scale` must be a finite number >= 0. Got {self.noise_scale}.")
         action_mode = self.normalization_mapping.get("ACTION")
         if self.clip_actions and action_mode != NormalizationMode.MIN_MAX:
             raise ValueError(

@@ -713,6 +713,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         shape = (b, self.config.horizon, action_dim)
         if noise is None:
             noise = torch.randn(shape, generator=generator, device=context.device, dtype=context.dtype)
+            noise = noise * self.config.noise_scale
         elif tuple(noise.shape) != shape:
             raise ValueError(f"`noise` must have shape {shape}. Got {tuple(noise.shape)}.")
         actions = model.sample(context, noise.to(device=context.device, dtype=context.dtype),
