@@ -94,6 +94,7 @@ def test_ray_collection_is_identical_to_local(local_ray, local_dataset, tmp_path
     assert not (root / ".bavo_staging").exists()
 
 
+@pytest.mark.slow  # ~60 s on 2 cores; the local executor's kill tests run by default
 @needs_ray
 def test_a_killed_ray_worker_loses_and_duplicates_nothing(local_ray, local_dataset, tmp_path, monkeypatch):
     """SIGKILL the Ray worker recording seed 1 mid-episode: Ray runs it again in another worker; the dataset
@@ -115,6 +116,7 @@ def test_a_killed_ray_worker_loses_and_duplicates_nothing(local_ray, local_datas
     assert dataset_digests(root) == dataset_digests(local_dataset)
 
 
+@pytest.mark.slow
 @needs_ray
 def test_ray_collection_resumes_a_local_one(local_ray, local_dataset, tmp_path):
     """One episode collected locally, then the same command for two on Ray records only the second."""

@@ -146,6 +146,7 @@ def test_cli_grid_errors(tmp_path, capsys):
     assert not (tmp_path / "out").exists() and not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow  # ~20 s on 2 cores; test_ray_executor.py checks the Ray executor itself by default
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None,
                     reason="Ray is not installed (the optional extra: pip install 'lerobot_env_bavo[ray]')")
 def test_grid_on_ray_gives_the_same_results_as_local(tmp_path):

@@ -231,6 +231,7 @@ cli.main(sys.argv[1:])
 """
 
 
+@pytest.mark.slow  # ~30 s on 2 cores; the local executor's resume tests run by default
 @needs_ray
 def test_a_killed_driver_rerun_does_only_the_unfinished_episodes(tmp_path):
     """kill -9 of `bavo-eval --executor ray` (its own private Ray) after a few episodes; the same command
