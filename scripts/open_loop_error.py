@@ -59,6 +59,8 @@ def main() -> None:
     cfg = PreTrainedConfig.from_pretrained(path)
     cfg.device = "cpu"
     if args.noise_scale is not None:
+        if not hasattr(cfg, "noise_scale"):
+            ap.error(f"--noise-scale needs a maniflow or afar checkpoint; {path} is a {cfg.type} one")
         cfg.noise_scale = args.noise_scale
     policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
     pre, post = make_pre_post_processors(policy_cfg=cfg, pretrained_path=str(path))
@@ -101,7 +103,7 @@ def main() -> None:
     slope = float(lp @ lt / max(lt @ lt, 1e-12))
     print(f"{path}: {len(errs_j)} chunks; joint MAE {np.mean(errs_j):.4f} rad (max {np.max(errs_j):.4f}); "
           f"gripper MAE {np.mean(errs_g):.3f}; lead slope {slope:.2f}; "
-          f"noise_scale {policy.config.noise_scale}")
+          f"noise_scale {getattr(policy.config, 'noise_scale', '-')}")
     if spreads:
         print(f"manipulation arms: spread across {args.draws} draws {1000 * np.mean(spreads):.1f} mrad, "
               f"error per draw {1000 * np.mean(errs_arm):.1f} mrad")
