@@ -55,6 +55,98 @@ def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
     return len(kept), len(tensors) - len(kept)
 
 
+def store_half_precision(file: Path) -> int:
+    """Rewrite `model.safetensors` with its float32 tensors stored as float16: half the bytes, so that a model
+    twice the size fits the 7 MB a shipped checkpoint may take. LeRobot's loader copies each stored tensor
+    into the float32 model (`load_state_dict` casts), so the policy still runs in float32, with weights
+    rounded to float16's 11 significant bits (relative error <= 2**-11). Integer tensors (the EMA step) are
+    kept. Refuses a tensor that float16 cannot hold (|x| > 65504). Returns the number of tensors converted."""
+    import torch
+    from safetensors.torch import load_file, save_file
+
+    tensors = load_file(str(file))
+    converted = 0
+    for key, value in tensors.items():
+        if value.dtype != torch.float32:
+            continue
+        half = value.half()
+        if not half.isfinite().all() and value.isfinite().all():
+            raise SystemExit(f"{file}: tensor '{key}' exceeds float16's range (max |x| = "
+                             f"{value.abs().max().item():.4g}); ship it without --half")
+        tensors[key] = half
+        converted += 1
+    tmp = file.with_name(file.name + ".tmp")
+    save_file(tensors, str(tmp), metadata={"format": "pt"})
+    shutil.copymode(file, tmp)
+    tmp.replace(file)
+    return converted
+
+
+def weights_in_half_precision(file: Path) -> bool:
+    """Whether `model.safetensors` stores its floating-point tensors in float16 (shipped with `--half`, now
+    or when the folder was first shipped: re-shipping with `--checkpoint` keeps the stored precision)."""
+    from safetensors import safe_open
+
+    with safe_open(str(file), framework="pt") as f:
+        return any(f.get_slice(k).get_dtype() == "F16" for k in f.keys())  # noqa: SIM118 (not a dict)
+
+
+# The statistics each LeRobot normalisation mode reads (lerobot.processor.normalize_processor,
+# `_apply_transform`); IDENTITY reads none.
+STATS_READ_BY_MODE = {
+    "IDENTITY": (),
+    "MEAN_STD": ("mean", "std"),
+    "MIN_MAX": ("min", "max"),
+    "QUANTILES": ("q01", "q99"),
+    "QUANTILE10": ("q10", "q90"),
+}
+NORMALIZER_STEPS = ("normalizer_processor", "unnormalizer_processor")
+
+
+def statistics_read(step_config: dict) -> list[str]:
+    """The `feature.stat` entries a (un)normalizer step reads at inference, from its saved config: for each of
+    its `features`, the statistics of the mode its `norm_map` gives that feature's type."""
+    norm_map = step_config.get("norm_map", {})
+    keys = []
+    for feature, spec in step_config.get("features", {}).items():
+        mode = norm_map.get(spec["type"], "IDENTITY")
+        if mode not in STATS_READ_BY_MODE:
+            raise SystemExit(f"normalisation mode {mode!r} of '{feature}' is unknown to ship_checkpoint.py")
+        keys += [f"{feature}.{stat}" for stat in STATS_READ_BY_MODE[mode]]
+    return keys
+
+
+def keep_inference_statistics(folder: Path) -> tuple[int, int]:
+    """Rewrite each (un)normalizer state file of the shipped processors with only the statistics it reads at
+    inference (`statistics_read`). The training data's statistics hold every feature the dataset has (the
+    teacher's training-only targets, indices) and five to ten statistics each (mean, std, quantiles, count);
+    a MIN_MAX normaliser reads two. Why it must be exact: LeRobot's normaliser passes a feature through
+    unchanged when its statistics are absent, so a missing entry would not fail, it would feed the policy
+    raw values; a statistic a step needs but the file lacks is refused here. Returns (entries kept,
+    entries dropped) over all files."""
+    from safetensors.torch import load_file, save_file
+
+    kept = dropped = 0
+    for name in ("policy_preprocessor.json", "policy_postprocessor.json"):
+        pipeline = json.loads((folder / name).read_text())
+        for step in pipeline.get("steps", []):
+            if step.get("registry_name") not in NORMALIZER_STEPS or not step.get("state_file"):
+                continue
+            file = folder / step["state_file"]
+            stats = load_file(str(file))
+            needed = statistics_read(step.get("config", {}))
+            missing = [k for k in needed if k not in stats]
+            if missing:
+                raise SystemExit(f"{file} lacks statistics its {step['registry_name']} reads: {missing}")
+            kept += len(needed)
+            dropped += len(stats) - len(needed)
+            tmp = file.with_name(file.name + ".tmp")
+            save_file({k: stats[k].contiguous() for k in needed}, str(tmp))
+            shutil.copymode(file, tmp)
+            tmp.replace(file)
+    return kept, dropped
+
+
 # lerobot-train's log lines that delimit the training time: each (re)start, and each checkpoint it saves
 TRAIN_LOG_EVENT = re.compile(
     r"(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d) \S+ (?:Start offline training|Checkpoint policy after step (\d+))"
@@ -133,7 +225,7 @@ def card_task(data: dict | None, evals: list[dict]) -> str:
 
 
 def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data: dict | None, config: dict,
-         notes: str = "") -> str:
+         notes: str = "", half: bool = False) -> str:
     pol, ds = train["policy"], train["dataset"]
     method, what = METHODS.get(pol["type"], (pol["type"], "a LeRobot policy"))
     task = card_task(data, evals)
@@ -240,6 +332,14 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         how = (f"`TASK={task} scripts/train_task.sh {pol['type']}` with the matching environment variables; "
                f"`TASK={task} bash scripts/train_task.sh recipe {pol['type']}` runs data, training, shipping "
                "and evaluation")
+    weights_text = (
+        ". It is stored in float16 (`--half`, to fit the 7 MB limit): the policy runs in\nfloat32 with its "
+        "weights rounded to float16, so its actions differ from the trained weights' in the last bits\nand "
+        "some outcomes flip; the results above are this folder's (`tests/test_inference_checkpoint.py`)."
+        if half else
+        ", and its actions are bit for bit those of the full\ncheckpoint "
+        "(`tests/test_inference_checkpoint.py`)."
+    )
     return f"""---
 library_name: lerobot
 tags: [lerobot, robotics, bavo-bench, {pol['type']}, active-vision]
@@ -275,8 +375,7 @@ Reproduce: {'; '.join(reproduce)}.
 ## Weights
 `model.safetensors` holds only what inference reads (the EMA copy;
 `scripts/ship_checkpoint.py --all-weights` ships both copies); loading it fills the training copy from the EMA
-weights, so fine-tuning with `--policy.path` still works, and its actions are bit for bit those of the full
-checkpoint (`tests/test_inference_checkpoint.py`).
+weights, so fine-tuning with `--policy.path` still works{weights_text}
 
 ## Use
 - `bavo-eval --policy PATH --tasks {task}`{demo}, or
@@ -341,10 +440,26 @@ def main() -> None:
         action="store_true",
         help="ship the whole model.safetensors (training copy and EMA) instead of the inference weights",
     )
+    p.add_argument(
+        "--half",
+        action="store_true",
+        help="store the weights in float16 (half the bytes; the policy still runs in float32 with rounded "
+        "weights): for a model whose float32 weights exceed the 7 MB limit. Check its SR beside the float32 "
+        "folder's: outcomes can flip with rounding",
+    )
+    p.add_argument(
+        "--trim-stats",
+        action="store_true",
+        help="keep in the processors' statistics files only what their normalisers read at inference (e.g. "
+        "min and max of the state, cloud and action), not the training data's every statistic (~0.5 MB)",
+    )
     args = p.parse_args()
     src = args.checkpoint if args.checkpoint else args.run / "checkpoints" / args.step / "pretrained_model"
     if not (src / "config.json").is_file():
         raise SystemExit(f"no checkpoint at {src}")
+    # read every input before the first file is written, so that a wrong path leaves --output as it was
+    evals = [json.loads(path.read_text()) for path in args.eval]
+    notes = args.notes.read_text() if args.notes else ""
     args.output.mkdir(parents=True, exist_ok=True)
     names = list(FILES) + [
         f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))
@@ -368,6 +483,12 @@ def main() -> None:
     if not args.all_weights:
         kept, dropped = keep_inference_weights(args.output / "model.safetensors", config)
         print(f"model.safetensors: kept the {kept} inference tensors, dropped {dropped}")
+    if args.half:
+        converted = store_half_precision(args.output / "model.safetensors")
+        print(f"model.safetensors: {converted} tensors in float16")
+    if args.trim_stats:
+        kept, dropped = keep_inference_statistics(args.output)
+        print(f"processor statistics: kept the {kept} read at inference, dropped {dropped}")
     from lerobot_bavo.checkpoints import recorded_cloud_settings, write_inputs_record
 
     cloud = recorded_cloud_settings(src) or {}
@@ -381,13 +502,12 @@ def main() -> None:
     train = json.loads((src / "train_config.json").read_text())
     if args.step.isdigit():
         train["shipped_step"] = int(args.step)
-    evals = [json.loads(path.read_text()) for path in args.eval]
-    notes = args.notes.read_text() if args.notes else ""
     wall_min = args.wall_min
     log = Path(f"{train.get('output_dir', '')}.log")
     if wall_min is None and train.get("output_dir") and log.is_file() and "shipped_step" in train:
         wall_min = training_wall_min(log.read_text(errors="replace"), train["shipped_step"])
-    card_text = card(train, evals, wall_min, args.output.name, collection_summary(train), config, notes)
+    card_text = card(train, evals, wall_min, args.output.name, collection_summary(train), config, notes,
+                     half=weights_in_half_precision(args.output / "model.safetensors"))
     (args.output / "README.md").write_text(card_text)
     print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
 
