@@ -18,6 +18,11 @@
 #   ship   the inference weights of step STOP to $OUT/<method>_<task>_sf_<samples> (`ship_checkpoint.py`), to
 #          bring back and evaluate with `bavo-eval --policy ... --seed 1000 --episodes 20` (validation seeds).
 #
+# A larger model (the "model too small" lever, docs/results/first_grasp.md): PRESET (default cpu_fast) and
+# POLICY_ARGS (more `--policy.*` size flags, space-separated) choose it; both are in the run's name. HALF=1
+# ships it with `--half --trim-stats` (float16 weights, so that ~3.4 M parameters fit the 7 MB limit), e.g.
+#   PRESET=cpu POLICY_ARGS="--policy.dit_mlp_ratio=3.5" HALF=1 TASK=drawer_stowing bash scripts/gpu_budget_run.sh
+#
 # On the project's lent GPU machine (docs/gpu.md), carrying .device/{whl-av,whl-train,fpsample,gl,on-device.sh}:
 # the first call `TRAIN_SECONDS=300 bash scripts/gpu_budget_run.sh`, then at once (the machine keeps /tmp and
 # outputs/ only while warm) `bash scripts/gpu_budget_run.sh train ship`. Expected (not measured): data ~4 min
@@ -38,6 +43,9 @@ SAMPLES="${SAMPLES:-6400000}"
 COMPILE="${COMPILE:-1}"
 TRAIN_SECONDS="${TRAIN_SECONDS:-0}"  # 0: no bound
 OUT="${OUT:-outputs/gpu_budget}"
+export PRESET="${PRESET:-cpu_fast}"
+POLICY_ARGS="${POLICY_ARGS:-}"  # e.g. "--policy.dit_mlp_ratio=3.5"
+HALF="${HALF:-0}"
 case "$METHOD" in afar|maniflow) ;; *) echo "METHOD must be afar or maniflow, not '$METHOD'" >&2; exit 2 ;; esac
 STOP=$((SAMPLES / BATCH))
 if [ $((STOP % 10)) -ne 0 ] || [ "$STOP" -lt 10 ]; then
@@ -46,7 +54,11 @@ if [ $((STOP % 10)) -ne 0 ] || [ "$STOP" -lt 10 ]; then
 fi
 LR="${LR:-$(python3 -c "print(f'{3e-4 * ($BATCH / 128) ** 0.5:.3g}')")}"
 BINDIR="${BIN-.venv/bin/}"
-TAG="_p128_od50_gpu$((SAMPLES / 1000))k"
+# the preset and size flags name the run (and the shipped folder) when they differ from the recipe's
+SIZE=""
+[ "$PRESET" != cpu_fast ] && SIZE="_$PRESET"
+[ -n "$POLICY_ARGS" ] && SIZE="${SIZE}_$(echo "$POLICY_ARGS" | sed -e 's/--policy\.//g' -e 's/[^A-Za-z0-9.]\+/_/g' -e 's/_$//')"
+TAG="_p128_od50_gpu$((SAMPLES / 1000))k$SIZE"
 RUN="${TASK}_${METHOD}${TAG}_${DATA}_s$SEED"
 CKPT=$(printf %06d "$STOP")
 log() { echo "[gpu_budget_run $(date +%T)] $*"; }
@@ -61,14 +73,16 @@ train() {
     log "$RUN: batch $BATCH, lr $LR, stop at step $STOP of a $((STOP * 5 / 4))-step cosine"
     STEPS=$((STOP * 5 / 4)) STOP_AT="$STOP" BATCH="$BATCH" LR="$LR" WARMUP=200 SAVE_FREQ=$((STOP / 10)) \
         THREADS="${THREADS:-8}" TAG="$TAG" TRAIN_SECONDS="$TRAIN_SECONDS" \
-        bash scripts/train_task.sh recipe-train "$METHOD" "${compile[@]}"
+        bash scripts/train_task.sh recipe-train "$METHOD" "${compile[@]}" $POLICY_ARGS
 }
 
 ship() {
     [ -d "outputs/train/$RUN/checkpoints/$CKPT" ] || { log "step $STOP not saved yet: run train again"; return 1; }
     mkdir -p "$OUT"
-    ${BINDIR}python scripts/ship_checkpoint.py --run "outputs/train/$RUN" --step "$CKPT" \
-        --output "$OUT/${METHOD}_${TASK}_sf_$((SAMPLES / 1000))k"
+    local half=()
+    [ "$HALF" = 1 ] && half=(--half --trim-stats)
+    ${BINDIR}python scripts/ship_checkpoint.py --run "outputs/train/$RUN" --step "$CKPT" "${half[@]}" \
+        --output "$OUT/${METHOD}_${TASK}_sf_$((SAMPLES / 1000))k$SIZE"
 }
 
 stages=("$@")

@@ -224,6 +224,32 @@ def card_task(data: dict | None, evals: list[dict]) -> str:
     return tasks.pop()
 
 
+# Architecture fields a size preset fills or a `--policy.*` flag may change (the card names those that differ)
+SIZE_FIELDS = ("point_encoder_hidden_dims", "point_feature_dim", "state_feature_dim", "dit_hidden_dim",
+               "dit_num_layers", "dit_num_heads", "dit_mlp_ratio", "time_freq_dim", "time_embed_hidden_dim",
+               "wqf_hidden_dim", "wqf_num_heads", "wqf_ffn_ratio")
+
+
+def size_flags(pol: dict) -> list[str]:
+    """`--policy.<field>=<value>` for each architecture field of the trained config that differs from its
+    preset's value (e.g. `--policy.dit_mlp_ratio=3.5`), so that the card's command rebuilds the same model."""
+    from lerobot.policies.factory import make_policy_config
+
+    import lerobot_bavo.policies  # noqa: F401  (registers the policy types)
+
+    reference = make_policy_config(pol["type"], preset=pol["preset"], device="cpu")
+    flags = []
+    for field in SIZE_FIELDS:
+        if field not in pol or not hasattr(reference, field):
+            continue
+        value, preset_value = pol[field], getattr(reference, field)
+        if isinstance(preset_value, tuple | list):
+            value, preset_value = list(value), list(preset_value)
+        if value != preset_value:
+            flags.append(f"--policy.{field}={value}".replace(" ", ""))
+    return flags
+
+
 def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data: dict | None, config: dict,
          notes: str = "", half: bool = False) -> str:
     pol, ds = train["policy"], train["dataset"]
@@ -298,7 +324,8 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
             "--view points`)."
         )
     epochs = f"{steps * batch / frames:.1f} epochs; " if frames else ""
-    extra = [f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
+    extra = size_flags(pol) + [
+        f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
     if pol.get("occluder_dropout"):  # the training recipe against the Stage occluder's position cue
         extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")
     binary = config.get("binary_action_dims", [6, 13])
@@ -333,9 +360,9 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                f"`TASK={task} bash scripts/train_task.sh recipe {pol['type']}` runs data, training, shipping "
                "and evaluation")
     weights_text = (
-        ". It is stored in float16 (`--half`, to fit the 7 MB limit): the policy runs in\nfloat32 with its "
-        "weights rounded to float16, so its actions differ from the trained weights' in the last bits\nand "
-        "some outcomes flip; the results above are this folder's (`tests/test_inference_checkpoint.py`)."
+        ".\nIt is stored in float16 (`--half`, to fit the 7 MB limit): the policy runs in float32 with its "
+        "weights\nrounded to float16, so its actions differ from the trained weights' in the last bits and "
+        "some\noutcomes flip; the results above are this folder's (`tests/test_inference_checkpoint.py`)."
         if half else
         ", and its actions are bit for bit those of the full\ncheckpoint "
         "(`tests/test_inference_checkpoint.py`)."
