@@ -141,15 +141,15 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 
 
 # data variants beside the recipe (docs/training.md): 50 (100) Stage + 50 (100) Random-time demonstrations;
-# self-filtered clouds (sf)
-DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "sf")
+# self-filtered clouds (sf); the self-filtered 100 + 100 at 1.5x the recipe's budget (b1.5x)
+DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "sf")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
     """`checkpoints/<method>_<task>` (training seed 1000) or `<method>_<task>_s<seed>` (another training seed,
     as `scripts/train_task.sh recipe` names it), each with an optional data variant's suffix before the
     seed."""
-    variants = "|".join(DATA_VARIANTS)
+    variants = "|".join(map(re.escape, DATA_VARIANTS))
     match = re.fullmatch(rf"([a-z]+)_([a-z_]+?)(?:_(?:{variants}))?(?:_s\d+)?", folder.name)
     assert match, folder.name
     return match.group(1), match.group(2)
