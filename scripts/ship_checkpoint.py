@@ -34,11 +34,22 @@ FILES = ("config.json", "model.safetensors", "train_config.json")
 MAX_BYTES = 7_000_000  # the size a shipped checkpoint may take in the repository (issue 27: at most 7 MB)
 
 
+def replace_tensor_file(file: Path, tensors: dict, metadata: dict | None = None) -> None:
+    """Write `tensors` over the safetensors `file` through a temporary file beside it (a stop halfway leaves
+    the old file whole), keeping its permissions."""
+    from safetensors.torch import save_file
+
+    tmp = file.with_name(file.name + ".tmp")
+    save_file(tensors, str(tmp), metadata=metadata)
+    shutil.copymode(file, tmp)
+    tmp.replace(file)
+
+
 def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
     """Rewrite `model.safetensors` with only the tensors inference reads (ManiFlow / A-FAR: the EMA copy, or
     the trained model when `use_ema_for_inference` is off; `ManiFlowPolicy.inference_state_keys`); loading it
     fills the other copy. Returns (tensors kept, tensors dropped)."""
-    from safetensors.torch import load_file, save_file
+    from safetensors.torch import load_file
 
     from lerobot_bavo.policies.maniflow.modeling_maniflow import inference_weight_prefixes
 
@@ -48,10 +59,7 @@ def keep_inference_weights(file: Path, config: dict) -> tuple[int, int]:
     if not any(k.startswith(used) for k in kept):
         raise SystemExit(f"{file} holds no '{used}*' tensors; pass --all-weights to ship it whole")
     if len(kept) < len(tensors):
-        tmp = file.with_name(file.name + ".tmp")
-        save_file(kept, str(tmp), metadata={"format": "pt"})
-        shutil.copymode(file, tmp)
-        tmp.replace(file)
+        replace_tensor_file(file, kept, metadata={"format": "pt"})
     return len(kept), len(tensors) - len(kept)
 
 
@@ -62,7 +70,7 @@ def store_half_precision(file: Path) -> int:
     rounded to float16's 11 significant bits (relative error <= 2**-11). Integer tensors (the EMA step) are
     kept. Refuses a tensor that float16 cannot hold (|x| > 65504). Returns the number of tensors converted."""
     import torch
-    from safetensors.torch import load_file, save_file
+    from safetensors.torch import load_file
 
     tensors = load_file(str(file))
     converted = 0
@@ -75,10 +83,8 @@ def store_half_precision(file: Path) -> int:
                              f"{value.abs().max().item():.4g}); ship it without --half")
         tensors[key] = half
         converted += 1
-    tmp = file.with_name(file.name + ".tmp")
-    save_file(tensors, str(tmp), metadata={"format": "pt"})
-    shutil.copymode(file, tmp)
-    tmp.replace(file)
+    if converted:  # a folder already in float16 (re-shipped in place) is left as it is
+        replace_tensor_file(file, tensors, metadata={"format": "pt"})
     return converted
 
 
@@ -124,10 +130,12 @@ def keep_inference_statistics(folder: Path) -> tuple[int, int]:
     unchanged when its statistics are absent, so a missing entry would not fail, it would feed the policy
     raw values; a statistic a step needs but the file lacks is refused here. Returns (entries kept,
     entries dropped) over all files."""
-    from safetensors.torch import load_file, save_file
+    from safetensors.torch import load_file
+
+    from lerobot_bavo.checkpoints import PROCESSOR_FILES
 
     kept = dropped = 0
-    for name in ("policy_preprocessor.json", "policy_postprocessor.json"):
+    for name in PROCESSOR_FILES:
         pipeline = json.loads((folder / name).read_text())
         for step in pipeline.get("steps", []):
             if step.get("registry_name") not in NORMALIZER_STEPS or not step.get("state_file"):
@@ -140,10 +148,8 @@ def keep_inference_statistics(folder: Path) -> tuple[int, int]:
                 raise SystemExit(f"{file} lacks statistics its {step['registry_name']} reads: {missing}")
             kept += len(needed)
             dropped += len(stats) - len(needed)
-            tmp = file.with_name(file.name + ".tmp")
-            save_file({k: stats[k].contiguous() for k in needed}, str(tmp))
-            shutil.copymode(file, tmp)
-            tmp.replace(file)
+            if len(needed) < len(stats):  # already trimmed (re-shipped in place): left as it is
+                replace_tensor_file(file, {k: stats[k].contiguous() for k in needed})
     return kept, dropped
 
 
