@@ -25,39 +25,11 @@ import json
 import numpy as np
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
-from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
+from lerobot_bavo.eval.rollout import CommandLog, env_kwargs_for_policy, longest_run, make_agent, run_episode
 from lerobot_bavo.sim import constants as C
 
 STILL = 1e-3  # rad per step: a left-arm command that moves less than this (max over joints) is "still"
 LIFTED = 0.03  # m above the block's resting height: the block is off the table, carried
-
-
-class CommandLog:
-    """Wraps an agent and keeps the commands it sends (the rollout only sees what the agent returns)."""
-
-    def __init__(self, agent):
-        self.agent, self.commands = agent, []
-
-    def reset(self, seed=None):
-        self.commands = []
-        return self.agent.reset(seed=seed)
-
-    def act(self, obs, info):
-        action = np.asarray(self.agent.act(obs, info), dtype=np.float64)
-        self.commands.append(action.copy())
-        return action
-
-    def __getattr__(self, name):
-        return getattr(self.agent, name)
-
-
-def longest_run(flags: list[bool]) -> int:
-    """Length of the longest run of True in `flags`."""
-    best = run = 0
-    for f in flags:
-        run = run + 1 if f else 0
-        best = max(best, run)
-    return best
 
 
 def outside_distance(xy: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:

@@ -159,6 +159,35 @@ def make_agent(policy: str, env, trust_remote_code: bool = False):
     return LeRobotPolicyAgent(policy, env, trust_remote_code=trust_remote_code)
 
 
+class CommandLog:
+    """Wraps an agent and keeps the commands it sends, one action per step (the rollout only sees what the
+    agent returns); the probes in `scripts/` read them after `run_episode`."""
+
+    def __init__(self, agent):
+        self.agent, self.commands = agent, []
+
+    def reset(self, seed=None):
+        self.commands = []
+        return self.agent.reset(seed=seed)
+
+    def act(self, obs, info):
+        action = np.asarray(self.agent.act(obs, info), dtype=np.float64)
+        self.commands.append(action.copy())
+        return action
+
+    def __getattr__(self, name):
+        return getattr(self.agent, name)
+
+
+def longest_run(flags: list[bool]) -> int:
+    """Length of the longest run of True in `flags`."""
+    best = run = 0
+    for f in flags:
+        run = run + 1 if f else 0
+        best = max(best, run)
+    return best
+
+
 def mark_event(frame: np.ndarray, width: int = 6) -> np.ndarray:
     """A red border around a frame (marks the frames just after an occlusion event)."""
     out = frame.copy()

@@ -1,0 +1,134 @@
+"""Where a policy's episode stops, and whether its arms are held there (issue 27, a probe, not a fix).
+
+Why: A-FAR trained on Cube Handoff's Stage + Random-time demonstrations stops under Stage at the right
+arm's lift and the handoff (M1-M3) about three times as often as the Stage-only recipe
+(docs/results/random_time.md). The Random-time demonstrations contain no re-grasps, but their expert holds
+both arms still while the camera restores the view, at whatever point of the task the event struck (48.7 %
+of their steps against 35.1 % in the Stage ones; `scripts/demo_stats.py`). If the policy copies that wait
+where no event asks for it, its arms travel much less after the last milestone it reaches than before it;
+if it fails the grasp or drops the object, they keep moving. Any task: milestones come from the env's `info`.
+
+A learned policy's command is never exactly still (its chunks differ by ~20 mrad), so travel is measured
+over a window: the largest change of any of the two arms' 12 joint commands (rad) across `--window` steps
+(24 = two executed chunks of 12). Per episode this prints the step each milestone was first reached and, for
+an episode that fails, the median travel before and after the step its last milestone was reached, the share
+of windows after it that travel less than `--held` rad (the expert's waits travel 0), the share of steps after
+it with the target hidden (visibility < 0.5), and the task's milestone tests at the last step (e.g. on Cube
+Handoff m1 = the right fingers touch the cube, m2 = the right hand holds it lifted, m3 = both hold it).
+
+    python scripts/arm_hold_trace.py --policy checkpoints/afar_cube_handoff_mixsr200sf \\
+        [--task cube_handoff] [--condition stage] [--seeds 1000-1019] [--output trace.jsonl]
+
+Seeds default to validation seeds (1000+); test seeds (2000+) are for reporting only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from lerobot_bavo.envs.bavo_env import BavoEnv
+from lerobot_bavo.eval.rollout import CommandLog, env_kwargs_for_policy, make_agent, run_episode
+from lerobot_bavo.sim import constants as C
+
+ARMS = np.r_[C.LEFT_ARM, C.RIGHT_ARM]
+
+
+def milestone_steps(progress: list[int]) -> list[int | None]:
+    """The first step (0-based) at which each of the five milestones counts as reached; None if never."""
+    return [next((i for i, p in enumerate(progress) if p >= m), None) for m in range(1, 6)]
+
+
+def window_travel(commands: np.ndarray, window: int) -> np.ndarray:
+    """For each step t, the largest change of any column of `commands` (T x joints, rad) from t to t + window;
+    empty when the series is not longer than the window."""
+    if len(commands) <= window:
+        return np.zeros(0)
+    return np.abs(commands[window:] - commands[:-window]).max(axis=1)
+
+
+def travel_around_stop(progress: list[int], commands: np.ndarray, hidden: list[bool], window: int,
+                       held: float) -> dict:
+    """Arm travel (median over windows, mrad) before and after the step the last reached milestone was first
+    reached, the share of windows after it below `held` rad, and the share of steps after it with the target
+    hidden. `commands` is the per-step action (T x action dims)."""
+    last = max(progress) if progress else 0
+    stop = progress.index(last) if last > 0 else 0
+    before = window_travel(commands[:stop, ARMS], window)
+    after = window_travel(commands[stop:, ARMS], window)
+
+    def median_mrad(x: np.ndarray) -> float | None:
+        return round(1000 * float(np.median(x)), 1) if len(x) else None
+
+    return {
+        "stop_step": stop,
+        "after_steps": int(len(progress) - stop),
+        "travel_before_mrad": median_mrad(before),
+        "travel_after_mrad": median_mrad(after),
+        "held_share": round(float(np.mean(after < held)), 3) if len(after) else None,
+        "hidden_share": round(float(np.mean(hidden[stop:])), 3) if len(progress) > stop else None,
+    }
+
+
+def main() -> None:
+    from lerobot_bavo.envs.tasks import TASKS
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--policy", required=True, help="a checkpoint folder, or `expert`")
+    ap.add_argument("--task", default="cube_handoff", choices=sorted(TASKS))
+    ap.add_argument("--condition", default="stage", choices=["clean", "stage", "random"])
+    ap.add_argument("--seeds", default="1000-1019", help="first-last (inclusive); validation seeds")
+    ap.add_argument("--window", type=int, default=24, help="steps over which arm travel is measured")
+    ap.add_argument("--held", type=float, default=0.05,
+                    help="travel (rad) per window below which the arms count as held (~ a policy's jitter)")
+    ap.add_argument("--output", help="also write one JSON line per episode here")
+    args = ap.parse_args()
+    first, last = (int(s) for s in args.seeds.split("-"))
+    env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
+    agent = CommandLog(make_agent(args.policy, env))
+    base = env.unwrapped
+    progress: list[int] = []
+    hidden: list[bool] = []
+
+    def on_step(info):
+        occ = info.get("occlusion")
+        progress.append(int(info["progress"]))
+        hidden.append(bool(occ is not None and occ["visibility"] is not None and occ["visibility"] < 0.5))
+
+    rows = []
+    if args.output:
+        open(args.output, "w").close()
+    for seed in range(first, last + 1):
+        progress.clear()
+        hidden.clear()
+        record = run_episode(env, agent, seed, on_step=on_step)
+        commands = np.array(agent.commands[:len(progress)])
+        row = {"seed": seed, "success": record["success"], "progress": record["progress"],
+               "milestone_steps": milestone_steps(progress)}
+        if not record["success"]:
+            row.update(travel_around_stop(progress, commands, hidden, args.window, args.held))
+            row["tests_at_end"] = [k for k, v in base.task.evaluate(base.model, base.data).items() if v]
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        if args.output:
+            with open(args.output, "a") as out:
+                out.write(json.dumps(row) + "\n")
+    env.close()
+    stopped = [r for r in rows if not r["success"]]
+    stops = np.bincount([r["progress"] for r in stopped], minlength=6).tolist()
+
+    def median(key: str) -> float:
+        values = [r[key] for r in stopped if r.get(key) is not None]
+        return float(np.median(values)) if values else float("nan")
+
+    print(f"{args.policy} {args.task} {args.condition} seeds {args.seeds}: {len(rows)} episodes, "
+          f"{len(rows) - len(stopped)} successes; stopped at M0-M5 {stops}; arm travel per {args.window} "
+          f"steps before / after the last milestone, median over stopped episodes: "
+          f"{median('travel_before_mrad'):.0f} / {median('travel_after_mrad'):.0f} mrad; "
+          f"held share after it {median('held_share'):.2f}")
+
+
+if __name__ == "__main__":
+    main()
