@@ -15,6 +15,10 @@ an episode that fails, the median travel before and after the step its last mile
 of windows after it that travel less than `--held` rad (the expert's waits travel 0), the share of steps after
 it with the target hidden (visibility < 0.5), and the task's milestone tests at the last step (e.g. on Cube
 Handoff m1 = the right fingers touch the cube, m2 = the right hand holds it lifted, m3 = both hold it).
+With `--hold-tests m2,m3,m4` (the tests that mean "a hand holds the object") it also finds the last step any
+of them held, i.e. where the object was let go of or slipped, and prints both grippers' commands there and
+`--after` steps later (the policy's gripper commands, 1 = open): a gripper commanded open is a release, one
+still commanded closed a slip.
 
     python scripts/arm_hold_trace.py --policy checkpoints/afar_cube_handoff_mixsr200sf \\
         [--task cube_handoff] [--condition stage] [--seeds 1000-1019] [--output trace.jsonl]
@@ -72,6 +76,20 @@ def travel_around_stop(progress: list[int], commands: np.ndarray, hidden: list[b
     }
 
 
+def release_or_slip(held: list[bool], commands: np.ndarray, after: int) -> dict:
+    """The last step at which `held` (per step: a hand holds the object) is true, and both grippers' commands
+    there and `after` steps later (clipped to the episode); empty if the object was never held."""
+    steps = [i for i, h in enumerate(held) if h]
+    if not steps:
+        return {}
+    last = steps[-1]
+    later = min(last + after, len(commands) - 1)
+    grippers = (C.LEFT_GRIPPER, C.RIGHT_GRIPPER)
+    return {"last_held_step": last,
+            "grippers_at_last_held": [round(float(commands[last, g]), 2) for g in grippers],
+            "grippers_after": [round(float(commands[later, g]), 2) for g in grippers]}
+
+
 def main() -> None:
     from lerobot_bavo.envs.tasks import TASKS
 
@@ -83,19 +101,27 @@ def main() -> None:
     ap.add_argument("--window", type=int, default=24, help="steps over which arm travel is measured")
     ap.add_argument("--held", type=float, default=0.05,
                     help="travel (rad) per window below which the arms count as held (~ a policy's jitter)")
+    ap.add_argument("--hold-tests", default="",
+                    help="tests that mean a hand holds the object, comma-separated (Cube Handoff: m2,m3,m4)")
+    ap.add_argument("--after", type=int, default=6, help="steps after the last held step to read grippers at")
     ap.add_argument("--output", help="also write one JSON line per episode here")
     args = ap.parse_args()
+    hold_tests = [t for t in args.hold_tests.split(",") if t]
     first, last = (int(s) for s in args.seeds.split("-"))
     env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
     agent = CommandLog(make_agent(args.policy, env))
     base = env.unwrapped
     progress: list[int] = []
     hidden: list[bool] = []
+    held: list[bool] = []
 
     def on_step(info):
         occ = info.get("occlusion")
         progress.append(int(info["progress"]))
         hidden.append(bool(occ is not None and occ["visibility"] is not None and occ["visibility"] < 0.5))
+        if hold_tests:
+            tests = base.task.evaluate(base.model, base.data)
+            held.append(any(tests[t] for t in hold_tests))
 
     rows = []
     if args.output:
@@ -103,6 +129,7 @@ def main() -> None:
     for seed in range(first, last + 1):
         progress.clear()
         hidden.clear()
+        held.clear()
         record = run_episode(env, agent, seed, on_step=on_step)
         commands = np.array(agent.commands[:len(progress)])
         row = {"seed": seed, "success": record["success"], "progress": record["progress"],
@@ -110,6 +137,8 @@ def main() -> None:
         if not record["success"]:
             row.update(travel_around_stop(progress, commands, hidden, args.window, args.held))
             row["tests_at_end"] = [k for k, v in base.task.evaluate(base.model, base.data).items() if v]
+            if hold_tests:
+                row.update(release_or_slip(held, commands, args.after))
         rows.append(row)
         print(json.dumps(row), flush=True)
         if args.output:

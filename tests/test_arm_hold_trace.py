@@ -38,3 +38,13 @@ def test_travel_around_stop_by_hand():
     # the camera arm's joints do not count as arm travel
     commands[:, C.CAMERA_ARM] = np.arange(6)[:, None]
     assert arm_hold_trace.travel_around_stop(progress, commands, hidden, 1, 0.005)["travel_after_mrad"] == 0.0
+
+
+def test_release_or_slip_by_hand():
+    commands = np.ones((6, len(C.ACTION_NAMES)))  # grippers open (1)
+    commands[1:4, C.RIGHT_GRIPPER] = 0.0  # the right hand closed for steps 1-3, open again from step 4
+    held = [False, True, True, True, False, False]
+    row = arm_hold_trace.release_or_slip(held, commands, after=2)
+    assert row == {"last_held_step": 3, "grippers_at_last_held": [1.0, 0.0], "grippers_after": [1.0, 1.0]}
+    assert arm_hold_trace.release_or_slip(held, commands, after=10)["grippers_after"] == [1.0, 1.0]  # clipped
+    assert arm_hold_trace.release_or_slip([False] * 6, commands, after=2) == {}
