@@ -142,8 +142,10 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 
 # data variants beside the recipe (docs/training.md): 50 (100) Stage + 50 (100) Random-time demonstrations;
 # self-filtered clouds (sf); the self-filtered 100 + 100 at 1.5x the recipe's budget (b1.5x) and with the
-# larger shippable model (cpu_mlp3.5: `PRESET=cpu --policy.dit_mlp_ratio=3.5`, float16)
-DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_cpu_mlp3.5", "mixsr200sf_ft", "sf")
+# larger shippable model (cpu_mlp3.5: `PRESET=cpu --policy.dit_mlp_ratio=3.5`, float16); the Stage-only
+# self-filtered recipe fine-tuned on the self-filtered 100 + 100 (ft)
+DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_cpu_mlp3.5",
+                 "mixsr200sf_ft", "sf")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
