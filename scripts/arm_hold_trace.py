@@ -34,7 +34,13 @@ import json
 import numpy as np
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
-from lerobot_bavo.eval.rollout import CommandLog, env_kwargs_for_policy, make_agent, run_episode
+from lerobot_bavo.eval.rollout import (
+    CommandLog,
+    env_kwargs_for_policy,
+    make_agent,
+    run_episode,
+    target_hidden,
+)
 from lerobot_bavo.sim import constants as C
 
 ARMS = np.r_[C.LEFT_ARM, C.RIGHT_ARM]
@@ -116,9 +122,8 @@ def main() -> None:
     held: list[bool] = []
 
     def on_step(info):
-        occ = info.get("occlusion")
         progress.append(int(info["progress"]))
-        hidden.append(bool(occ is not None and occ["visibility"] is not None and occ["visibility"] < 0.5))
+        hidden.append(target_hidden(info))
         if hold_tests:
             tests = base.task.evaluate(base.model, base.data)
             held.append(any(tests[t] for t in hold_tests))

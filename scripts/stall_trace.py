@@ -25,7 +25,14 @@ import json
 import numpy as np
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
-from lerobot_bavo.eval.rollout import CommandLog, env_kwargs_for_policy, longest_run, make_agent, run_episode
+from lerobot_bavo.eval.rollout import (
+    CommandLog,
+    env_kwargs_for_policy,
+    longest_run,
+    make_agent,
+    run_episode,
+    target_hidden,
+)
 from lerobot_bavo.sim import constants as C
 
 STILL = 1e-3  # rad per step: a left-arm command that moves less than this (max over joints) is "still"
@@ -72,12 +79,11 @@ def step_record(env, info: dict) -> dict:
     task = base.task
     lo, hi = task.interior_opening(base.data)
     block = base.data.xpos[task.block_body]
-    occ = info.get("occlusion")
     return {
         "progress": info["progress"], "left_touch": task.evaluate(base.model, base.data)["m3"],
         "block_z": float(block[2]), "outside": outside_distance(block[:2], lo, hi),
         "slide": task.slide(base.data),
-        "occluded": bool(occ is not None and occ["visibility"] is not None and occ["visibility"] < 0.5),
+        "occluded": target_hidden(info),
     }
 
 

@@ -188,6 +188,13 @@ def longest_run(flags: list[bool]) -> int:
     return best
 
 
+def target_hidden(info: dict, below: float = 0.5) -> bool:
+    """Whether an occlusion event hides the current target this step: its visibility (the share of the
+    target's sample points the camera sees, 0-1) is reported and under `below`."""
+    occ = info.get("occlusion")
+    return bool(occ is not None and occ["visibility"] is not None and occ["visibility"] < below)
+
+
 def mark_event(frame: np.ndarray, width: int = 6) -> np.ndarray:
     """A red border around a frame (marks the frames just after an occlusion event)."""
     out = frame.copy()
