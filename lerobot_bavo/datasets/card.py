@@ -132,6 +132,13 @@ def card_description(sidecar: dict, repo_id: str) -> str:
             if st.get("execution_noise")
             else []
         ),
+        *(
+            ["- Occlusion events that fell due during the expert's approach, grasp or release phases waited "
+             "until the phase was over (`--events-outside-contacts`): no demonstration has an interrupted "
+             "grasp or release."]
+            if st.get("events_outside_contacts")
+            else []
+        ),
         f"- Observation: {st['image_height']} x {st['image_width']} RGB, {st['n_points']} points per cloud, "
         f"vertical field of view {st['fovy']} deg (intrinsics f = H / (2 tan(fovy / 2)), principal point at "
         "the image centre).",

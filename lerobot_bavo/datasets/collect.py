@@ -268,7 +268,8 @@ class Collector(DatasetSession):
                 "episode_length": cfg.episode_length, "keep_failures": cfg.keep_failures, "seed": seed,
                 "staging": str(self.staging),
                 "video": self._video if seed >= 0 else None,
-                "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None}
+                "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None,
+                "events_outside_contacts": cfg.events_outside_contacts}
 
     @functools.cached_property
     def _video(self) -> dict | None:
@@ -361,6 +362,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--execution-noise-clean-contacts", action="store_true",
                    help="with --execution-noise: no noise during the expert's approach/grasp/release phases "
                         "(its `contact_phases`)")
+    p.add_argument("--events-outside-contacts", action="store_true",
+                   help="an occlusion event that falls due while the expert is in one of its approach/grasp/"
+                        "release phases (its `contact_phases`) waits until that phase is over, so no "
+                        "demonstration has an interrupted grasp or release. A data variant for occluded "
+                        "conditions (docs/results/random_time.md); evaluation never holds events. "
+                        "Default: off")
     p.add_argument(
         "--push-to-hub", action="store_true", help="upload when done (needs `huggingface-cli login`)"
     )
@@ -402,6 +409,7 @@ def main(argv: list[str] | None = None) -> int:
             execution_noise=ExecutionNoise(
                 std=args.execution_noise, clean_contacts=args.execution_noise_clean_contacts
             ),
+            events_outside_contacts=args.events_outside_contacts,
             push_to_hub=args.push_to_hub,
             private=True if args.private else None,
             progress=not args.no_progress,

@@ -39,6 +39,8 @@ class CollectConfig:
         keep_failures: keep unsuccessful episodes too (tests / debugging only).
         execution_noise: DART-style noise on the executed arm joint targets; the dataset records the
             expert's clean actions (`experts/perturbation.py`). Off by default.
+        events_outside_contacts: occlusion events wait while the expert is in one of its `contact_phases`
+            (`BavoEnv.hold_occlusion_events`); only for an occluded condition. Off by default.
         use_videos: store the active image as video.
         video_codec: that video's codec (`datasets/video_codec.py`): "h264" or "libsvtav1" (LeRobot's default
         AV1).
@@ -63,6 +65,7 @@ class CollectConfig:
     episode_length: int | None = None
     keep_failures: bool = False
     execution_noise: ExecutionNoise = field(default_factory=ExecutionNoise)
+    events_outside_contacts: bool = False
     use_videos: bool = True
     video_codec: str | None = None
     push_to_hub: bool = False
@@ -84,6 +87,12 @@ class CollectConfig:
             raise ValueError(f"--seed must be >= 0, got {self.seed}")
         if self.video_codec is not None:
             check_video_codec(self.video_codec)
+        if self.events_outside_contacts:
+            from lerobot_bavo.envs.conditions import get_condition
+
+            if not get_condition(self.condition).occluded:
+                raise ValueError(f"--events-outside-contacts needs an occluded condition; "
+                                 f"{self.condition!r} has no occlusion events")
         if "/" not in self.repo_id:
             raise ValueError(f"--repo-id must look like '<user>/<name>', got {self.repo_id!r}")
 
@@ -114,6 +123,7 @@ class CollectConfig:
             "keep_failures": self.keep_failures,
             # Only when on, so that the records of collections made before the option existed still match.
             **({"execution_noise": self.execution_noise.to_dict()} if self.execution_noise.enabled else {}),
+            **({"events_outside_contacts": True} if self.events_outside_contacts else {}),
             "use_videos": self.use_videos,
             # Only when not the codec of datasets made before the choice existed (their records name none).
             **video_codec_record_entry(video_codec, self.use_videos),

@@ -109,7 +109,8 @@ class EpisodeRecorder:
         self._seg.close()
         self.env.close()
 
-    def record(self, seed: int, agent=None, execution_noise: ExecutionNoise | None = None) -> EpisodeRecord:
+    def record(self, seed: int, agent=None, execution_noise: ExecutionNoise | None = None,
+               events_outside_contacts: bool = False) -> EpisodeRecord:
         """Record the episode of `seed`, driven by the scripted expert, or by `agent` when given.
 
         With `execution_noise` (DART, `experts/perturbation.py`), the env executes the agent's arm joint
@@ -118,8 +119,12 @@ class EpisodeRecorder:
         `agent` (e.g. `lerobot_bavo.teleop`'s human operator) has the expert's interface: `reset()`,
         `act(obs, info)`, `recovering` (True marks recovery frames), and optionally `source`
         ("human") and `stop_requested` (True ends the episode after the current step).
+
+        With `events_outside_contacts`, an occlusion event that falls due while the agent is in one of its
+        `contact_phases` waits until that phase is over (`BavoEnv.hold_occlusion_events`).
         """
         from lerobot_bavo.experts import make_expert
+        from lerobot_bavo.experts.base import in_contact_phase
 
         env = self.env
         t0 = time.perf_counter()
@@ -196,6 +201,8 @@ class EpisodeRecorder:
             # DART: execute the perturbed targets, keep the clean ones (contact phases stay clean)
             if noise is not None:
                 action = noise.perturb(action, quiet=execution_noise.quiet_for(expert))
+            if events_outside_contacts:
+                env.hold_occlusion_events(in_contact_phase(expert))
             obs, _, terminated, truncated, info = env.step(action)
             if terminated or truncated or getattr(expert, "stop_requested", False):
                 break

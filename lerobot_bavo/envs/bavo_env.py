@@ -192,6 +192,8 @@ class BavoEnv(gym.Env):
         self._placer: OccluderPlacer | None = None
         self._schedule: OcclusionSchedule | None = None
         self._events: list[OcclusionEvent] = []
+        self._events_held = False
+        self._event_pending = False
         self._cvg = CVGAccumulator()
         self._step_visibility: float | None = None
         self._episode_summary: dict | None = None
@@ -216,6 +218,8 @@ class BavoEnv(gym.Env):
         self._flags = self.task.evaluate(self.model, self.data)
         self._tracker.update(self._flags, 0)
         self._events = []
+        self._events_held = False
+        self._event_pending = False
         self._cvg = CVGAccumulator()
         self._episode_summary = None
         self._ended = False
@@ -291,6 +295,13 @@ class BavoEnv(gym.Env):
             return None
         return event.occluder_pos, event.occluder_rot, (OCCLUDER_HALF_EXTENTS[1], OCCLUDER_HALF_EXTENTS[2])
 
+    def hold_occlusion_events(self, held: bool) -> None:
+        """While `held`, an occlusion event that falls due waits, and starts at the first step after the
+        hold is lifted (several that fall due meanwhile start once). A data-collection lever
+        (`bavo-collect --events-outside-contacts`): demonstrations whose events never interrupt the expert's
+        grasps and releases. Evaluation never holds events; `reset()` lifts the hold."""
+        self._events_held = bool(held)
+
     def _start_event(self) -> None:
         if self._placer is None:
             robot = [g for g in range(self.model.ngeom) if self.model.geom_group[g] == C.GROUP_ROBOT]
@@ -314,7 +325,12 @@ class BavoEnv(gym.Env):
     def _update_occlusion(self) -> None:
         """Start an event if one is due, then record this step's visibility samples."""
         step = self._elapsed
-        started = self._schedule.due(step, self._tracker.depth)
+        started = self._schedule.due(step, self._tracker.depth)  # always asked: Stage keeps state in it
+        if self._events_held:
+            self._event_pending |= started
+            started = False
+        elif self._event_pending:
+            started, self._event_pending = True, False
         if started:
             self._start_event()
         event = self.current_event

@@ -44,6 +44,13 @@ class ArmCommander:
         self.pos, self.rot = np.asarray(pos, float), np.asarray(rot, float)
 
 
+def in_contact_phase(agent) -> bool:
+    """Whether `agent` (an expert, after its `act`) is in one of its declared `contact_phases`: the final
+    approach, grasp and release of an object. Agents without phases (a human at the teleop page) never are.
+    Used by DART noise's `clean_contacts` and by `bavo-collect --events-outside-contacts`."""
+    return getattr(agent, "phase", None) in getattr(agent, "contact_phases", ())
+
+
 class ScriptedExpert(abc.ABC):
     """Privileged scripted expert: `reset()` after `env.reset()`, then `act(obs, info)` per step.
 

@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from lerobot_bavo.experts.base import in_contact_phase
 from lerobot_bavo.sim import constants as C
 
 # Entries of the 21-d action that get noise: both manipulators' six arm joints (not the grippers,
@@ -80,7 +81,7 @@ class ExecutionNoise:
     def quiet_for(self, agent) -> bool:
         """Whether `agent`'s current step is executed clean: `clean_contacts` and the agent (an expert, after
         its `act`) is in one of its `contact_phases`. Agents without phases are never quiet."""
-        return self.clean_contacts and getattr(agent, "phase", None) in getattr(agent, "contact_phases", ())
+        return self.clean_contacts and in_contact_phase(agent)
 
     def process(self, seed: int) -> JointNoise:
         """The noise of one episode, drawn from its own generator seeded by the episode seed (never a
