@@ -117,6 +117,10 @@ def main() -> None:
     env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
     agent = CommandLog(make_agent(args.policy, env))
     base = env.unwrapped
+    known = base.task.evaluate(base.model, base.data)  # the task's test names (values unused)
+    if unknown := [t for t in hold_tests if t not in known]:
+        env.close()
+        ap.error(f"--hold-tests {','.join(unknown)}: not tests of {args.task}; its tests: {', '.join(known)}")
     progress: list[int] = []
     hidden: list[bool] = []
     held: list[bool] = []

@@ -1,6 +1,11 @@
-"""scripts/arm_hold_trace.py: its pure helpers by hand."""
+"""scripts/arm_hold_trace.py: its pure helpers by hand, and its refusal of unknown hold tests."""
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -48,3 +53,14 @@ def test_release_or_slip_by_hand():
     assert row == {"last_held_step": 3, "grippers_at_last_held": [1.0, 0.0], "grippers_after": [1.0, 1.0]}
     assert arm_hold_trace.release_or_slip(held, commands, after=10)["grippers_after"] == [1.0, 1.0]  # clipped
     assert arm_hold_trace.release_or_slip([False] * 6, commands, after=2) == {}
+
+
+def test_unknown_hold_test_is_refused_before_any_episode():
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "OMP_NUM_THREADS": "1"}
+    command = [sys.executable, str(root / "scripts/arm_hold_trace.py"), "--policy", "expert",
+               "--hold-tests", "m2,m9", "--seeds", "1000-1000"]
+    out = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300, cwd=root)
+    assert out.returncode == 2
+    assert "--hold-tests m9: not tests of cube_handoff; its tests: m1, m2, m3, m4, m5" in out.stderr
+    assert '"seed"' not in out.stdout  # no episode was run
