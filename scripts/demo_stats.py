@@ -57,13 +57,12 @@ def episode_stats(actions: np.ndarray, recovering: np.ndarray, still: float) -> 
 
 
 def read_view(root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    from lerobot_bavo.datasets.lerobot_format import read_frame_columns
 
-    files = sorted((root / "data").glob("*/*.parquet"))
-    if not files:
-        raise SystemExit(f"{root}: no data/*/*.parquet files (a LeRobot v3 view is expected)")
-    table = pa.concat_tables([pq.read_table(f, columns=COLUMNS) for f in files])
+    try:
+        table = read_frame_columns(root, COLUMNS)
+    except FileNotFoundError as e:
+        raise SystemExit(f"{root}: {e} (a LeRobot v3 view is expected)") from None
     actions = np.stack(table["action"].to_numpy(zero_copy_only=False)).astype(np.float64)
     episodes = table["episode_index"].to_numpy()
     recovering = np.array([np.asarray(r).reshape(-1)[0] for r in table[COLUMNS[2]].to_pylist()], float)

@@ -22,17 +22,16 @@ COLUMNS = ["annotation.event_start", "annotation.episode_seed", "frame_index"]
 def event_starts(root: Path) -> dict[int, list[int]]:
     """Episode seed -> the frames (control steps) at which an occlusion event started, the reset's (0)
     included."""
-    import pyarrow.parquet as pq
+    from lerobot_bavo.datasets.lerobot_format import read_frame_columns
 
+    try:
+        table = read_frame_columns(root, COLUMNS).to_pandas()
+    except FileNotFoundError as e:
+        raise SystemExit(f"{root}: {e} (a LeRobot dataset folder is expected)") from None
     starts: dict[int, list[int]] = {}
-    files = sorted((Path(root) / "data").glob("*/*.parquet"))
-    if not files:
-        raise SystemExit(f"no parquet files under {root}/data: not a LeRobot dataset folder")
-    for path in files:
-        table = pq.read_table(path, columns=COLUMNS).to_pandas()
-        for seed, episode in table.groupby("annotation.episode_seed"):
-            started = episode["annotation.event_start"].to_numpy() > 0
-            starts[int(seed)] = episode["frame_index"].to_numpy()[started].tolist()
+    for seed, episode in table.groupby("annotation.episode_seed"):
+        started = episode["annotation.event_start"].to_numpy() > 0
+        starts[int(seed)] = episode["frame_index"].to_numpy()[started].tolist()
     return starts
 
 

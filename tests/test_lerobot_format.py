@@ -191,3 +191,18 @@ def test_last_episode_row_is_lerobots_last_episode(tmp_path):
     last = load_episodes(root)[-1]
     assert F.last_episode(root, columns) == {k: last[k] for k in columns} == {"episode_index": 4,
                                                                              "dataset_to_index": 40}
+
+
+def test_read_frame_columns_joins_the_data_files_in_order(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    for chunk, file, rows in ((0, 1, [3, 4]), (0, 0, [0, 1, 2]), (1, 0, [5])):
+        path = tmp_path / F.DATA_PATH.format(chunk_index=chunk, file_index=file)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pa.table({"index": rows, "other": [0.5] * len(rows)}), path)
+    table = F.read_frame_columns(tmp_path, ["index"])
+    assert table.column_names == ["index"]
+    assert table.column("index").to_pylist() == [0, 1, 2, 3, 4, 5]
+    with pytest.raises(FileNotFoundError, match="no data files under"):
+        F.read_frame_columns(tmp_path / "empty", ["index"])

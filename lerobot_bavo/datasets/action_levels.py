@@ -59,23 +59,15 @@ def normalised_levels(levels_per_dim: dict[int, list[float]], low: np.ndarray, h
 def dataset_binary_action_levels(root: Path, dims: tuple[int, ...] | None = None) -> list[float]:
     """`normalised_levels` of the dataset at `root` (a LeRobot v3 folder; its `meta/stats.json` min / max, as
     the policy's MIN_MAX normaliser), for `dims` (default: BAVO's gripper commands)."""
-    import pyarrow.parquet as pq
-
     from lerobot_bavo.datasets.fast import column_array
+    from lerobot_bavo.datasets.lerobot_format import read_frame_columns
     from lerobot_bavo.sim.constants import GRIPPER_INDICES
 
     dims = tuple(GRIPPER_INDICES if dims is None else dims)
     root = Path(root)
     stats = json.loads((root / "meta" / "stats.json").read_text())["action"]
-    files = sorted((root / "data").glob("*/*.parquet"))
-    if not files:
-        raise FileNotFoundError(f"no data files under {root / 'data'}")
-    actions, episodes = [], []
-    for file in files:
-        table = pq.read_table(file, columns=["action", "episode_index"])
-        actions.append(column_array(table.column("action")))
-        episodes.append(column_array(table.column("episode_index")))
-    action, episode = np.concatenate(actions), np.concatenate(episodes)
+    table = read_frame_columns(root, ["action", "episode_index"])
+    action, episode = column_array(table.column("action")), column_array(table.column("episode_index"))
     per_dim = {d: held_levels(action[:, d], episode) for d in dims}
     return normalised_levels(per_dim, np.asarray(stats["min"]), np.asarray(stats["max"]))
 

@@ -347,6 +347,18 @@ def episode_rows_table(rows: list[dict]):
     return pa.Table.from_pydict(combined)
 
 
+def read_frame_columns(root: Path, columns: list[str]):
+    """`columns` of every frame of the dataset at `root` (its `data/*/*.parquet` files in order), as one Arrow
+    table; FileNotFoundError when there are no data files."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    files = sorted((Path(root) / "data").glob("*/*.parquet"))
+    if not files:
+        raise FileNotFoundError(f"no data files under {Path(root) / 'data'}")
+    return pa.concat_tables([pq.read_table(f, columns=columns) for f in files])
+
+
 def last_episode(root: Path, columns: list[str]) -> dict:
     """`columns` of the last episode row of `meta/episodes/` (the last row of its last file), as a resumed
     LeRobot writer reads `meta.episodes[-1]`."""
