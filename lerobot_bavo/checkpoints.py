@@ -47,12 +47,15 @@ PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
 AUDITED_POLICY_TYPES = ("act", "diffusion", "vqbet", "tdmpc", "maniflow", "afar")
 # Registered LeRobot 0.6.1 steps that load a model, tokenizer or processor named in their config from the Hub
 # (`from_pretrained`; the action tokenizer with trust_remote_code=True by default, the reward classifier a Hub
-# encoder with trust_remote_code=True, the others tokenizers or weights): a checkpoint could point them at any
-# repository. None of them is used by the audited policy types. tests/test_faults.py checks that the list
-# covers every registered step whose source calls `from_pretrained` or `hf_hub_download`.
+# encoder with trust_remote_code=True, the reward models' `robometer_encoder` and `topreward_encoder`
+# (registered when `lerobot.rewards` is imported) a Hub processor with trust_remote_code=True, the others
+# tokenizers or weights): a checkpoint could point them at any repository. None of them is used by the audited
+# policy types. tests/test_faults.py imports every LeRobot module that registers a step and checks that the
+# list covers each one whose source calls `from_pretrained` or `hf_hub_download`.
 HUB_LOADING_STEPS = frozenset({
     "action_tokenizer_processor", "tokenizer_processor", "reward_classifier_processor", "eo1_qwen_processor",
     "groot_action_unpack_unnormalize_v2", "groot_n1_7_action_decode_v1", "molmoact2_pack_inputs",
+    "robometer_encoder", "topreward_encoder",
 })
 
 
