@@ -145,7 +145,7 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 # larger shippable model (cpu_mlp3.5: `PRESET=cpu --policy.dit_mlp_ratio=3.5`, float16); the Stage-only
 # self-filtered recipe fine-tuned on the self-filtered 100 + 100 (ft)
 DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_cpu_mlp3.5",
-                 "mixsr200sf_ft", "mixsroc200sf", "sf")
+                 "mixsr200sf_ft", "mixsr150sf", "mixsroc200sf", "sf")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
