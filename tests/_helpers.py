@@ -11,7 +11,12 @@ import threading
 import time
 from pathlib import Path
 
+from lerobot_bavo.features import ObservationSettings
+
 REPO = Path(__file__).resolve().parent.parent
+# The small observation the dataset, writer and teleop tests record (48 x 64 pixel images, 32 points): cheap
+# to render and encode, and every feature keeps its shape's rank.
+SMALL_SETTINGS = ObservationSettings(image_height=48, image_width=64, n_points=32)
 
 
 def load_script(relative_path: str):

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from _helpers import SMALL_SETTINGS
 
-from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 
-SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = SMALL_SETTINGS
 STEPS = 30
 
 # Reference: 2 Cube Handoff Stage episodes (seeds 0, 1), 30 steps each, 48 x 64 images, 32 points, images in

@@ -16,13 +16,14 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import torch
+from _helpers import SMALL_SETTINGS
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, CollectionError, Collector, collect
 from lerobot_bavo.datasets.hub import check_files, load_bavo_dataset, read_sidecar
 from lerobot_bavo.features import flatten_points
 
-SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = SMALL_SETTINGS
 STEPS = 30
 REPO = "tester/bavo_tiny"
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _helpers import SMALL_SETTINGS
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect_config import CollectConfig, CollectionError
@@ -28,7 +29,7 @@ from lerobot_bavo.datasets.session import DatasetSession
 from lerobot_bavo.datasets.staging import staged_path
 from lerobot_bavo.datasets.writer import WriterSession
 
-SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = SMALL_SETTINGS
 
 
 def _config(root: Path, codec: str = "h264") -> CollectConfig:

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import pytest
 import torch
+from _helpers import SMALL_SETTINGS
 
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets.collect import CollectConfig, collect
 
-SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = SMALL_SETTINGS
 STEPS = 30
 REPO = "tester/bavo_fast"
 FPS = 25

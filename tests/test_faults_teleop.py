@@ -26,9 +26,8 @@ import urllib.request
 
 import numpy as np
 import pytest
-from _helpers import OutputLines
+from _helpers import SMALL_SETTINGS, OutputLines
 
-from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.teleop.access import AccessPolicy, split_host
 from lerobot_bavo.teleop.protocol import (
     MAX_KEYS,
@@ -42,7 +41,7 @@ from lerobot_bavo.teleop.protocol import (
 
 aiohttp = pytest.importorskip("aiohttp", reason="bavo-teleop needs aiohttp")
 
-SETTINGS = ObservationSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = SMALL_SETTINGS
 REPO = "tester/bavo_human_faults"
 EPISODE_LENGTH = 400  # long enough that episodes end by `stop`, never by the step limit mid-test
 IDENT = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]

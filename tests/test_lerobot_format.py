@@ -11,13 +11,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _helpers import SMALL_SETTINGS
 
 from lerobot_bavo.datasets import lerobot_format as F
 from lerobot_bavo.datasets import schema as S
 from lerobot_bavo.datasets import video_codec as V
 from lerobot_bavo.datasets.episode_payload import codec_video_settings, encode_video, video_settings
 
-SETTINGS = S.ObservationSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = SMALL_SETTINGS
 
 
 def _features() -> dict:

@@ -16,13 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _helpers import OutputLines
+from _helpers import SMALL_SETTINGS, OutputLines
 
 from lerobot_bavo.datasets import schema as S
-from lerobot_bavo.features import ObservationSettings
 from lerobot_bavo.teleop.controls import TeleopController, TickInput, motion_command
 
-SETTINGS = ObservationSettings(image_height=48, image_width=64, n_points=32)
+SETTINGS = SMALL_SETTINGS
 REPO = "tester/bavo_human"
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
 
