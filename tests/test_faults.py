@@ -163,6 +163,26 @@ def test_a_checkpoint_with_a_popen_step_is_refused_before_it_runs(checkpoint, tm
         check_processor_steps(evil, trust_remote_code=True)
 
 
+def test_the_reward_models_hub_processor_steps_are_refused_once_registered(checkpoint, tmp_path):
+    """LeRobot's reward models register two steps that load a Hub processor with trust_remote_code=True
+    (`robometer_encoder`, `topreward_encoder`), but only once `lerobot.rewards` is imported: with them
+    registered, a checkpoint naming either is refused for what it loads, not as an unknown step."""
+    import lerobot.rewards  # noqa: F401  (registers the two steps)
+    from lerobot.processor import ProcessorStepRegistry
+
+    from lerobot_bavo.checkpoints import UntrustedCheckpointError, check_processor_steps
+
+    evil = _copy(checkpoint, tmp_path / "evil")
+    pre = json.loads((checkpoint / "policy_preprocessor.json").read_text())
+    for name, config in (("robometer_encoder", {"pretrained_path": "evil/model"}),
+                         ("topreward_encoder", {"vlm_name": "evil/vlm"})):
+        assert name in ProcessorStepRegistry.list()
+        bad = dict(pre, steps=[*pre["steps"], {"registry_name": name, "config": config}])
+        (evil / "policy_preprocessor.json").write_text(json.dumps(bad))
+        with pytest.raises(UntrustedCheckpointError, match=f"'{name}' loads a model or tokenizer .* Hub"):
+            check_processor_steps(evil)
+
+
 def test_every_registered_step_that_loads_from_the_hub_is_refused():
     """HUB_LOADING_STEPS is a list read from LeRobot's sources; this keeps it complete if LeRobot changes.
 
