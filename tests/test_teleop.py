@@ -394,8 +394,7 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
                 x0 = page.evaluate("window.bavo.lastHeader.ee.right")
                 hold(page, "d", 0.5)  # +x
                 hold(page, "r", 0.4)  # +z
-                time.sleep(0.3)
-                x1 = page.evaluate("window.bavo.lastHeader.ee.right")
+                x1 = settled(page, "window.bavo.lastHeader.ee.right")
                 assert x1[0] - x0[0] > 0.03 and x1[2] - x0[2] > 0.02 and abs(x1[1] - x0[1]) < 0.01, (x0, x1)
                 state("ended")  # the 60-step limit
                 before = _files(root)
