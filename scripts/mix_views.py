@@ -15,26 +15,59 @@ one written here: the first source's settings, with `condition` naming the mix (
     python scripts/mix_views.py --output outputs/datasets/bavo_cube_handoff_mixsr_dart_points \\
         --source outputs/datasets/bavo_cube_handoff_dart_points:50 \\
         --source outputs/datasets/bavo_cube_handoff_dart_random_points:50
+
+A source given as ROOT:EPISODES:WEIGHT is kept for its view recoveries: its frames outside the
+demonstrator's recoveries (the points view's label `observation.teacher.recovering` is 0) weigh WEIGHT in the
+action losses, every other frame 1. The joined view then carries the per-frame label
+`observation.teacher.sample_weight`, which `--policy.sample_weights=true` reads (0 leaves only the recoveries
+of that source in the losses).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from lerobot_bavo.datasets.metadata import SIDECAR, read_sidecar
 from lerobot_bavo.datasets.views import drop_stale_episode_columns, view_source
+from lerobot_bavo.features import TEACHER_RECOVERING, TEACHER_SAMPLE_WEIGHT
 
 
-def parse_source(text: str) -> tuple[Path, int]:
-    """'ROOT:EPISODES' -> (root, episodes); a clear error otherwise."""
+def parse_source(text: str) -> tuple[Path, int, float | None]:
+    """'ROOT:EPISODES' or 'ROOT:EPISODES:WEIGHT' -> (root, episodes, weight or None); a clear error
+    otherwise."""
+    head, sep, last = text.rpartition(":")
+    weight = None
+    if sep and head.rpartition(":")[1] and head.rpartition(":")[2].isdigit():  # ROOT:EPISODES:WEIGHT
+        try:
+            weight = float(last)
+        except ValueError:
+            weight = math.nan
+        if not (math.isfinite(weight) and weight >= 0.0):
+            raise argparse.ArgumentTypeError(
+                f"--source ROOT:EPISODES:WEIGHT wants a finite WEIGHT >= 0, got {last!r} in {text!r}")
+        text = head
     root, sep, count = text.rpartition(":")
     if not sep or not root or not count.isdigit() or int(count) < 1:
-        raise argparse.ArgumentTypeError(f"--source wants ROOT:EPISODES (a positive count), got {text!r}")
-    return Path(root), int(count)
+        raise argparse.ArgumentTypeError(
+            f"--source wants ROOT:EPISODES[:WEIGHT] (a positive count), got {text!r}")
+    return Path(root), int(count), weight
+
+
+def frame_weights(episode_index: np.ndarray, recovering: np.ndarray,
+                  episode_weight: np.ndarray) -> np.ndarray:
+    """(frames, 1) float32 loss weights: 1 on frames the demonstrator spent recovering the view
+    (`recovering` > 0.5), else the weight of the frame's episode (`episode_weight[episode_index]`, 1 for
+    episodes of an unweighted source)."""
+    recovering = np.asarray(recovering).reshape(-1) > 0.5
+    outside = np.asarray(episode_weight, dtype=np.float32)[np.asarray(episode_index).reshape(-1)]
+    return np.where(recovering, np.float32(1.0), outside).astype(np.float32).reshape(-1, 1)
 
 
 def read_record(view_root: Path) -> dict:
@@ -58,9 +91,12 @@ def clean_copy(view_root: Path, into: Path) -> Path:
     return into
 
 
-def mixed_record(records: list[dict], counts: list[int], roots: list[Path], repo_id: str) -> dict:
+def mixed_record(records: list[dict], counts: list[int], roots: list[Path], repo_id: str,
+                 weights: list[float | None] | None = None) -> dict:
     """The joined view's collection record: the first source's settings with the mix's condition, and the
-    episodes it kept from each source (episode index renumbered, seed as recorded)."""
+    episodes it kept from each source (episode index renumbered, seed as recorded) and, for sources kept for
+    their recoveries, the weight of their other frames."""
+    weights = weights or [None] * len(records)
     settings = dict(records[0]["settings"])
     conditions = [r["settings"]["condition"] for r in records]
     settings["condition"] = "+".join(conditions)
@@ -75,16 +111,37 @@ def mixed_record(records: list[dict], counts: list[int], roots: list[Path], repo
         "settings": settings,
         "episodes": episodes,
         "mixed_from": [
-            {"root": str(view_source(root)), "episodes": count, "condition": cond}
-            for root, count, cond in zip(roots, counts, conditions, strict=True)
+            {"root": str(view_source(root)), "episodes": count, "condition": cond,
+             **({} if weight is None else {"outside_recovery_weight": weight})}
+            for root, count, cond, weight in zip(roots, counts, conditions, weights, strict=True)
         ],
     }
+
+
+def add_sample_weights(joined, counts: list[int], weights: list[float | None], output: Path):
+    """Write `joined` (a LeRobotDataset) to `output` with the per-frame `observation.teacher.sample_weight`
+    (`frame_weights`), using LeRobot's own `dataset_tools.modify_features`."""
+    from lerobot.datasets.dataset_tools import modify_features
+
+    from lerobot_bavo.datasets.fast import column_array
+
+    episode_weight = np.concatenate([np.full(count, 1.0 if w is None else w, dtype=np.float32)
+                                     for count, w in zip(counts, weights, strict=True)])
+    table = joined.hf_dataset.data
+    labels = frame_weights(column_array(table.column("episode_index")),
+                           column_array(table.column(TEACHER_RECOVERING)), episode_weight)
+    spec = {"dtype": "float32", "shape": [1], "names": None}
+    modify_features(joined, add_features={TEACHER_SAMPLE_WEIGHT: (labels, spec)}, output_dir=output,
+                    repo_id=joined.repo_id)
+    drop_stale_episode_columns(output)
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--source", action="append", type=parse_source, required=True,
-                    help="ROOT:EPISODES, a training view and how many of its first episodes to keep; repeat")
+                    help="ROOT:EPISODES[:WEIGHT], a training view and how many of its first episodes to "
+                         "keep; with WEIGHT, its frames outside the view recoveries weigh WEIGHT in the "
+                         "action losses (--policy.sample_weights=true); repeat")
     ap.add_argument("--output", type=Path, required=True, help="the joined view's folder (ends in _points)")
     ap.add_argument("--repo-id", default=None, help="default local/<output folder name>")
     args = ap.parse_args(argv)
@@ -98,15 +155,19 @@ def main(argv: list[str] | None = None) -> None:
     from lerobot.datasets.dataset_tools import merge_datasets, split_dataset
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    roots = [root for root, _ in args.source]
-    counts = [count for _, count in args.source]
+    roots = [root for root, _, _ in args.source]
+    counts = [count for _, count, _ in args.source]
+    weights = [weight for _, _, weight in args.source]
     records = [read_record(root) for root in roots]
     with tempfile.TemporaryDirectory(dir=args.output.parent) as tmp:
         heads = []
-        for i, (root, count) in enumerate(args.source):
+        for i, (root, count, _) in enumerate(args.source):
             info = json.loads((root / "meta" / "info.json").read_text())
             if count > info["total_episodes"]:
                 raise SystemExit(f"{root} has {info['total_episodes']} episodes, fewer than {count}")
+            if weights[i] is not None and TEACHER_RECOVERING not in info["features"]:
+                raise SystemExit(f"{root} has no '{TEACHER_RECOVERING}' label to keep its recoveries by; "
+                                 "make its points view again (python -m lerobot_bavo.datasets.views)")
             clean = clean_copy(root, Path(tmp) / f"clean{i}")
             dataset = LeRobotDataset(f"local/{root.name}", root=clean)
             if count == info["total_episodes"]:
@@ -114,10 +175,15 @@ def main(argv: list[str] | None = None) -> None:
                 continue
             part = split_dataset(dataset, {f"head{i}": list(range(count))}, output_dir=Path(tmp) / f"s{i}")
             heads.append(part[f"head{i}"])
-        merge_datasets(heads, output_repo_id=repo_id, output_dir=args.output)
+        if all(weight is None for weight in weights):
+            merge_datasets(heads, output_repo_id=repo_id, output_dir=args.output)
+        else:
+            add_sample_weights(merge_datasets(heads, output_repo_id=repo_id, output_dir=Path(tmp) / "joined"),
+                               counts, weights, args.output)
     source = view_source(args.output)
     (source / SIDECAR).parent.mkdir(parents=True, exist_ok=True)
-    (source / SIDECAR).write_text(json.dumps(mixed_record(records, counts, roots, repo_id), indent=1))
+    record = mixed_record(records, counts, roots, repo_id, weights)
+    (source / SIDECAR).write_text(json.dumps(record, indent=1))
     info = json.loads((args.output / "meta" / "info.json").read_text())
     print(f"{args.output}: {info['total_episodes']} episodes, {info['total_frames']} frames; record at "
           f"{source / SIDECAR}")

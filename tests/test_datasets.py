@@ -661,3 +661,36 @@ def test_mix_views_joins_the_first_episodes_of_each_view(dataset_root, tmp_path)
 
     with pytest.raises(argparse.ArgumentTypeError, match="ROOT:EPISODES"):
         mix.parse_source("no_count")
+
+    # A source kept for its recoveries: its other frames weigh 0.25, the rest 1 (the points view's label).
+    weighted = tmp_path / "mixedw_points"
+    mix.main(["--output", str(weighted), "--source", f"{stage_view}:1", "--source", f"{random_view}:2:0.25"])
+    joined_w = LeRobotDataset("local/mixedw_points", root=weighted)
+    assert len(joined_w) == len(joined)
+    got = [float(joined_w[k][S.TEACHER_SAMPLE_WEIGHT]) for k in range(len(joined_w))]
+    recovering = [float(joined[k][S.TEACHER_RECOVERING]) for k in range(len(joined))]
+    expected = [1.0] * STEPS + [1.0 if r > 0.5 else 0.25 for r in recovering[STEPS:]]
+    assert got == expected
+    assert 0.25 in got and recovering[STEPS:].count(1.0) > 0  # both kinds of Random-time frame occur
+    torch.testing.assert_close(joined_w[STEPS + 4][S.ACTION], rand[4][S.ACTION])
+    record = json.loads((tmp_path / "mixedw" / SIDECAR).read_text())
+    assert [m.get("outside_recovery_weight") for m in record["mixed_from"]] == [None, 0.25]
+
+
+def test_mix_views_source_weights_and_frame_weights_by_hand():
+    import argparse
+
+    from _helpers import load_script
+
+    mix = load_script("scripts/mix_views.py")
+    assert mix.parse_source("a/b_points:3") == (Path("a/b_points"), 3, None)
+    assert mix.parse_source("a/b_points:3:0") == (Path("a/b_points"), 3, 0.0)
+    assert mix.parse_source("a/b_points:12:0.5") == (Path("a/b_points"), 12, 0.5)
+    for bad in ("a:3:-1", "a:3:nan", "a:3:inf", "a:3:x", "a:0:0.5", "a:x:0.5"):
+        with pytest.raises(argparse.ArgumentTypeError, match="ROOT:EPISODES"):
+            mix.parse_source(bad)
+    # episodes 0, 1 of an unweighted source, 2 of one weighted 0.0; recovering frames always 1
+    got = mix.frame_weights(np.array([0, 0, 1, 2, 2, 2]), np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0]),
+                            np.array([1.0, 1.0, 0.0]))
+    assert got.shape == (6, 1) and got.dtype == np.float32
+    assert got[:, 0].tolist() == [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]

@@ -1,5 +1,7 @@
 """`--policy.recovery_weight`: the recovery frames' weight in ManiFlow's / A-FAR's action losses (a weighted
-mean over samples), read from the training-only label `observation.teacher.recovering` of the points view."""
+mean over samples), read from the training-only label `observation.teacher.recovering` of the points view;
+and `--policy.sample_weights`, the per-frame weights `scripts/mix_views.py` writes
+(`observation.teacher.sample_weight`)."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import pytest
 import torch
 from lerobot.configs import FeatureType, PolicyFeature
 
-from lerobot_bavo.features import TEACHER_RECOVERING
+from lerobot_bavo.features import TEACHER_RECOVERING, TEACHER_SAMPLE_WEIGHT
 from lerobot_bavo.policies import ManiFlowConfig, ManiFlowPolicy
 
 N_POINTS = 8
@@ -69,6 +71,41 @@ def test_uniform_weights_leave_the_loss_as_it_is_and_uneven_ones_change_it():
     labels = torch.zeros(4, to, 1)
     labels[0, -1] = 1.0
     assert loss_of(weighted, {**batch, TEACHER_RECOVERING: labels}) != pytest.approx(reference, rel=1e-4)
+
+
+
+def test_sample_weights_read_the_last_step_and_multiply_the_recovery_weight():
+    policy = make_policy(recovery_weight=3.0, sample_weights=True)
+    recovering = torch.tensor([[[0.0], [1.0]], [[1.0], [0.0]], [[0.0], [0.0]]])
+    sample = torch.tensor([[[9.0], [0.5]], [[9.0], [2.0]], [[9.0], [0.0]]])  # the last step counts
+    batch = {TEACHER_RECOVERING: recovering, TEACHER_SAMPLE_WEIGHT: sample}
+    assert policy.loss_weights(batch).tolist() == [1.5, 2.0, 0.0]
+    assert make_policy(sample_weights=True).loss_weights({TEACHER_SAMPLE_WEIGHT: sample}).tolist() == [
+        0.5, 2.0, 0.0]
+    assert make_policy().loss_weights({TEACHER_SAMPLE_WEIGHT: sample}) is None  # off: the label is ignored
+    with pytest.raises(KeyError, match="sample_weight"):
+        make_policy(sample_weights=True).loss_weights({})
+
+
+def test_sample_weights_give_the_loss_recovery_weight_gives_for_the_same_weights():
+    """The same per-sample weights, given as a recovery weight of 4 on samples 0 and 2 or as sample-weight
+    labels 4, 1, 4, 1, weight the action losses alike; labels all 1 leave the loss unweighted."""
+    plain = make_policy()
+    by_recovery = make_policy(recovery_weight=4.0)
+    by_label = make_policy(sample_weights=True)
+    by_recovery.load_state_dict(plain.state_dict())
+    by_label.load_state_dict(plain.state_dict())
+    batch = make_batch(plain)
+    to = plain.config.n_obs_steps
+    recovering = torch.zeros(4, to, 1)
+    recovering[[0, 2], -1] = 1.0
+    labels = torch.ones(4, to, 1)
+    labels[[0, 2], -1] = 4.0
+    expected = loss_of(by_recovery, {**batch, TEACHER_RECOVERING: recovering})
+    assert loss_of(by_label, {**batch, TEACHER_SAMPLE_WEIGHT: labels}) == pytest.approx(expected, rel=1e-5)
+    ones = torch.ones(4, to, 1)
+    assert loss_of(by_label, {**batch, TEACHER_SAMPLE_WEIGHT: ones}) == pytest.approx(loss_of(plain, batch),
+                                                                                     rel=1e-5)
 
 
 def test_occluder_dropout_can_spare_the_recovery_frames():

@@ -86,6 +86,7 @@ from lerobot_bavo.features import (  # the keys and settings this schema is made
     TEACHER_KEYS,
     TEACHER_OCCLUDER,  # noqa: F401  (re-exported)
     TEACHER_RECOVERING,  # noqa: F401  (re-exported)
+    TEACHER_SAMPLE_WEIGHT,  # noqa: F401  (re-exported)
     TEACHER_VALID,
     TEACHER_VISIBLE,
     TEACHER_Z0,

@@ -219,6 +219,13 @@ class ManiFlowConfig(PreTrainedConfig):
             the view far less often than the expert at some events (docs/results/first_grasp.md, "Where
             Drawer Stowing's Stage episodes stop"). 1 (default) weights all samples alike; inference is
             unchanged.
+        sample_weights: Weight each training sample in the flow-matching and consistency losses by its
+            frame's training-only label `observation.teacher.sample_weight` (times `recovery_weight`'s
+            weight), which `scripts/mix_views.py --source ROOT:EPISODES:WEIGHT` writes when it joins a view
+            whose frames outside the demonstrator's view recoveries should count less. Why: demonstrations
+            of another occlusion condition can then teach the recovery without also teaching their
+            manipulation (docs/results/random_time.md: Random-time demonstrations cost the Stage handoff).
+            False (default) ignores the label; inference is unchanged.
         compile: Compile the networks with `torch.compile` (point and state encoders, DiT-X, and A-FAR's
             WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA
             training where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the
@@ -297,6 +304,7 @@ class ManiFlowConfig(PreTrainedConfig):
     occluder_dropout: float = 0.0
     occluder_dropout_in_recovery: bool = True
     recovery_weight: float = 1.0
+    sample_weights: bool = False
 
     # Training speed (docs/gpu.md).
     compile: bool = False

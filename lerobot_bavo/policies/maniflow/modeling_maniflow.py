@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from lerobot_bavo.features import (
     TEACHER_OCCLUDER,
     TEACHER_RECOVERING,
+    TEACHER_SAMPLE_WEIGHT,
     TEACHER_VISIBLE,
     TEACHER_Z0,
     TEACHER_ZF,
@@ -820,6 +821,23 @@ class ManiFlowPolicy(PreTrainedPolicy):
         return torch.where(recovering, torch.full_like(recovering, w, dtype=torch.float32),
                            torch.ones_like(recovering, dtype=torch.float32))
 
+    def loss_weights(self, batch: dict[str, Tensor]) -> Tensor | None:
+        """(B,) weights of the samples in the action losses: `recovery_weights` times, with `sample_weights`
+        on, each sample's per-frame label `observation.teacher.sample_weight` (last observation step; written
+        by `scripts/mix_views.py`); None when neither weights anything."""
+        weights = self.recovery_weights(batch)
+        if not self.config.sample_weights:
+            return weights
+        if TEACHER_SAMPLE_WEIGHT not in batch:
+            raise KeyError(
+                f"`sample_weights` needs the per-frame label '{TEACHER_SAMPLE_WEIGHT}' in the batch: join "
+                "the training view with `scripts/mix_views.py --source ROOT:EPISODES:WEIGHT`, or set "
+                "--policy.sample_weights=false."
+            )
+        label = batch[TEACHER_SAMPLE_WEIGHT]
+        label = label.reshape(label.shape[0], -1)[:, -1].to(torch.float32)
+        return label if weights is None else weights * label
+
     def flow_loss(self, points: Tensor, states: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """ManiFlow's objective on a shared context, given as its point tokens (B, To, N, Dp) and state
         features (B, To, Ds) (`ManiFlowModel.observation_tokens`; the encoder runs once, with gradients).
@@ -860,7 +878,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         mask = None
         if cfg.do_mask_loss_for_padding and "action_is_pad" in batch:
             mask = (~batch["action_is_pad"]).to(dtype)[:, :, None].expand_as(x1)
-        weights = self.recovery_weights(batch)
+        weights = self.loss_weights(batch)
         if weights is not None:  # a weighted mean: each sample's elements count `weight` times
             mask = (torch.ones_like(x1) if mask is None else mask) * weights.to(dtype)[:, None, None]
 
