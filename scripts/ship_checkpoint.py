@@ -211,9 +211,17 @@ METHODS = {  # policy type -> (name on the card, what it is)
 }
 
 
+def weighted(source: dict) -> str:
+    """What a joined view's source entry says of its loss weights (`mix_views.py --source ROOT:N:WEIGHT`)."""
+    weight = source.get("outside_recovery_weight")
+    if weight is None:
+        return ""
+    return f"; frames outside the view recoveries weigh {weight} in the action losses"
+
+
 def mixed_data_text(data: dict, noise_text: str) -> str:
     """The card's data sentence for a view joined by `scripts/mix_views.py` (a documented data variant)."""
-    parts = "; ".join(f"the first {m['episodes']} episodes of `{m['root']}` ({m['condition']})"
+    parts = "; ".join(f"the first {m['episodes']} episodes of `{m['root']}` ({m['condition']}{weighted(m)})"
                       for m in data["mixed_from"])
     return (f"a data variant, not the paper's protocol: `scripts/mix_views.py` joined the `points` views of "
             f"{parts} ({noise_text}{data['episodes']} episodes, {data['frames']:,} frames, simulator-exact "
@@ -334,6 +342,12 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
     if pol.get("occluder_dropout"):  # the training recipe against the Stage occluder's position cue
         extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")
+    if not pol.get("occluder_dropout_in_recovery", True):
+        extra.append("--policy.occluder_dropout_in_recovery=false")
+    if pol.get("recovery_weight", 1.0) != 1.0:
+        extra.append(f"--policy.recovery_weight={pol['recovery_weight']}")
+    if pol.get("sample_weights"):  # the per-frame weights of a view joined by scripts/mix_views.py
+        extra.append("--policy.sample_weights=true")
     binary = config.get("binary_action_dims", [6, 13])
     teacher_text = ". Teacher features are training-only."
     levels = [float(v) for v in config.get("binary_action_levels", [-1.0, 1.0])]

@@ -77,3 +77,16 @@ def test_the_card_names_the_size_flags_that_differ_from_the_preset():
     assert size_flags({**cpu, "type": "maniflow", "preset": "cpu_fast"}) == [  # cpu's sizes on cpu_fast
         "--policy.point_encoder_hidden_dims=[64,128,256,512]", "--policy.dit_hidden_dim=192",
         "--policy.time_embed_hidden_dim=256"]
+
+
+def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
+    """`mix_views.py --source ROOT:N:WEIGHT` records the weight in the view's `mixed_from`; the card's data
+    sentence names it, and names nothing for an unweighted source."""
+    ship = load_script("scripts/ship_checkpoint.py")
+    assert ship.weighted({"root": "r", "episodes": 100, "condition": "stage"}) == ""
+    random_source = {"condition": "random", "outside_recovery_weight": 0.0}
+    assert "weigh 0.0 in the action losses" in ship.weighted(random_source)
+    text = ship.mixed_data_text({"episodes": 200, "frames": 97071, "mixed_from": [
+        {"root": "s", "episodes": 100, "condition": "stage"},
+        {"root": "r", "episodes": 100, "condition": "random", "outside_recovery_weight": 0.0}]}, "")
+    assert "(stage)" in text and "(random; frames outside the view recoveries weigh 0.0" in text
