@@ -18,9 +18,11 @@ one written here: the first source's settings, with `condition` naming the mix (
 
 A source given as ROOT:EPISODES:WEIGHT is kept for its view recoveries: its frames outside the
 demonstrator's recoveries (the points view's label `observation.teacher.recovering` is 0) weigh WEIGHT in the
-action losses, every other frame 1. The joined view then carries the per-frame label
+action losses, every other frame 1. With `--weigh recovery` it is the other way round: the source's recovery
+frames weigh WEIGHT, its other frames 1. The joined view then carries the per-frame label
 `observation.teacher.sample_weight`, which `--policy.sample_weights=true` reads (0 leaves only the recoveries
-of that source in the losses).
+of that source in the losses, or only its other frames; `--policy.loss_weight_dims` limits the weight to some
+action dimensions).
 """
 
 from __future__ import annotations
@@ -37,6 +39,10 @@ import numpy as np
 from lerobot_bavo.datasets.metadata import SIDECAR, read_sidecar
 from lerobot_bavo.datasets.views import drop_stale_episode_columns, view_source
 from lerobot_bavo.features import TEACHER_RECOVERING, TEACHER_SAMPLE_WEIGHT
+
+WEIGH = ("outside-recovery", "recovery")  # which frames of a ROOT:EPISODES:WEIGHT source weigh WEIGHT
+# the collection record's name for each: the weight of a source's ... frames
+WEIGHT_KEYS = {"outside-recovery": "outside_recovery_weight", "recovery": "recovery_weight"}
 
 
 def parse_source(text: str) -> tuple[Path, int, float | None]:
@@ -60,14 +66,18 @@ def parse_source(text: str) -> tuple[Path, int, float | None]:
     return Path(root), int(count), weight
 
 
-def frame_weights(episode_index: np.ndarray, recovering: np.ndarray,
-                  episode_weight: np.ndarray) -> np.ndarray:
-    """(frames, 1) float32 loss weights: 1 on frames the demonstrator spent recovering the view
-    (`recovering` > 0.5), else the weight of the frame's episode (`episode_weight[episode_index]`, 1 for
-    episodes of an unweighted source)."""
+def frame_weights(episode_index: np.ndarray, recovering: np.ndarray, episode_weight: np.ndarray,
+                  weigh: str = "outside-recovery") -> np.ndarray:
+    """(frames, 1) float32 loss weights: the weight of the frame's episode (`episode_weight[episode_index]`, 1
+    for episodes of an unweighted source) on the frames `weigh` names, 1 on the others. `weigh`:
+    "outside-recovery", the frames the demonstrator did not spend recovering the view (`recovering` <= 0.5),
+    or "recovery", those it did."""
+    if weigh not in WEIGH:
+        raise ValueError(f"weigh must be one of {WEIGH}, got {weigh!r}")
     recovering = np.asarray(recovering).reshape(-1) > 0.5
-    outside = np.asarray(episode_weight, dtype=np.float32)[np.asarray(episode_index).reshape(-1)]
-    return np.where(recovering, np.float32(1.0), outside).astype(np.float32).reshape(-1, 1)
+    weighted = ~recovering if weigh == "outside-recovery" else recovering
+    episode = np.asarray(episode_weight, dtype=np.float32)[np.asarray(episode_index).reshape(-1)]
+    return np.where(weighted, episode, np.float32(1.0)).astype(np.float32).reshape(-1, 1)
 
 
 def read_record(view_root: Path) -> dict:
@@ -92,10 +102,10 @@ def clean_copy(view_root: Path, into: Path) -> Path:
 
 
 def mixed_record(records: list[dict], counts: list[int], roots: list[Path], repo_id: str,
-                 weights: list[float | None] | None = None) -> dict:
+                 weights: list[float | None] | None = None, weigh: str = "outside-recovery") -> dict:
     """The joined view's collection record: the first source's settings with the mix's condition, and the
-    episodes it kept from each source (episode index renumbered, seed as recorded) and, for sources kept for
-    their recoveries, the weight of their other frames."""
+    episodes it kept from each source (episode index renumbered, seed as recorded) and, for weighted sources,
+    the weight of the frames `weigh` names."""
     weights = weights or [None] * len(records)
     settings = dict(records[0]["settings"])
     conditions = [r["settings"]["condition"] for r in records]
@@ -112,13 +122,14 @@ def mixed_record(records: list[dict], counts: list[int], roots: list[Path], repo
         "episodes": episodes,
         "mixed_from": [
             {"root": str(view_source(root)), "episodes": count, "condition": cond,
-             **({} if weight is None else {"outside_recovery_weight": weight})}
+             **({} if weight is None else {WEIGHT_KEYS[weigh]: weight})}
             for root, count, cond, weight in zip(roots, counts, conditions, weights, strict=True)
         ],
     }
 
 
-def add_sample_weights(joined, counts: list[int], weights: list[float | None], output: Path):
+def add_sample_weights(joined, counts: list[int], weights: list[float | None], output: Path,
+                       weigh: str = "outside-recovery"):
     """Write `joined` (a LeRobotDataset) to `output` with the per-frame `observation.teacher.sample_weight`
     (`frame_weights`), using LeRobot's own `dataset_tools.modify_features`."""
     from lerobot.datasets.dataset_tools import modify_features
@@ -129,7 +140,7 @@ def add_sample_weights(joined, counts: list[int], weights: list[float | None], o
                                      for count, w in zip(counts, weights, strict=True)])
     table = joined.hf_dataset.data
     labels = frame_weights(column_array(table.column("episode_index")),
-                           column_array(table.column(TEACHER_RECOVERING)), episode_weight)
+                           column_array(table.column(TEACHER_RECOVERING)), episode_weight, weigh)
     spec = {"dtype": "float32", "shape": [1], "names": None}
     modify_features(joined, add_features={TEACHER_SAMPLE_WEIGHT: (labels, spec)}, output_dir=output,
                     repo_id=joined.repo_id)
@@ -142,6 +153,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="ROOT:EPISODES[:WEIGHT], a training view and how many of its first episodes to "
                          "keep; with WEIGHT, its frames outside the view recoveries weigh WEIGHT in the "
                          "action losses (--policy.sample_weights=true); repeat")
+    ap.add_argument("--weigh", choices=WEIGH, default="outside-recovery",
+                    help="which frames of a ROOT:EPISODES:WEIGHT source weigh WEIGHT: those outside the view "
+                         "recoveries (default) or the recoveries; the other frames weigh 1")
     ap.add_argument("--output", type=Path, required=True, help="the joined view's folder (ends in _points)")
     ap.add_argument("--repo-id", default=None, help="default local/<output folder name>")
     args = ap.parse_args(argv)
@@ -179,10 +193,10 @@ def main(argv: list[str] | None = None) -> None:
             merge_datasets(heads, output_repo_id=repo_id, output_dir=args.output)
         else:
             add_sample_weights(merge_datasets(heads, output_repo_id=repo_id, output_dir=Path(tmp) / "joined"),
-                               counts, weights, args.output)
+                               counts, weights, args.output, args.weigh)
     source = view_source(args.output)
     (source / SIDECAR).parent.mkdir(parents=True, exist_ok=True)
-    record = mixed_record(records, counts, roots, repo_id, weights)
+    record = mixed_record(records, counts, roots, repo_id, weights, args.weigh)
     (source / SIDECAR).write_text(json.dumps(record, indent=1))
     info = json.loads((args.output / "meta" / "info.json").read_text())
     print(f"{args.output}: {info['total_episodes']} episodes, {info['total_frames']} frames; record at "

@@ -213,10 +213,12 @@ METHODS = {  # policy type -> (name on the card, what it is)
 
 def weighted(source: dict) -> str:
     """What a joined view's source entry says of its loss weights (`mix_views.py --source ROOT:N:WEIGHT`)."""
-    weight = source.get("outside_recovery_weight")
-    if weight is None:
-        return ""
-    return f"; frames outside the view recoveries weigh {weight} in the action losses"
+    outside, inside = source.get("outside_recovery_weight"), source.get("recovery_weight")
+    if outside is not None:
+        return f"; frames outside the view recoveries weigh {outside} in the action losses"
+    if inside is not None:
+        return f"; the view recoveries' frames weigh {inside} in the action losses"
+    return ""
 
 
 def mixed_data_text(data: dict, noise_text: str) -> str:

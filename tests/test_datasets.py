@@ -694,3 +694,9 @@ def test_mix_views_source_weights_and_frame_weights_by_hand():
                             np.array([1.0, 1.0, 0.0]))
     assert got.shape == (6, 1) and got.dtype == np.float32
     assert got[:, 0].tolist() == [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]
+    # --weigh recovery: the weighted source's recovery frames weigh its weight instead
+    got = mix.frame_weights(np.array([0, 0, 1, 2, 2, 2]), np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0]),
+                            np.array([1.0, 1.0, 0.25]), weigh="recovery")
+    assert got[:, 0].tolist() == [1.0, 1.0, 1.0, 0.25, 1.0, 1.0]
+    with pytest.raises(ValueError, match="weigh"):
+        mix.frame_weights(np.array([0]), np.array([0.0]), np.array([1.0]), weigh="all")

@@ -131,3 +131,35 @@ def test_occluder_dropout_can_spare_the_recovery_frames():
     recipe.config.points_per_step = 4
     seen = recipe.training_batch(batch)["observation.point_cloud"].reshape(2, 2, n, 6)
     assert torch.equal(seen[0, :, :5], cloud.reshape(2, 2, n, 6)[0, :, 3:])
+
+
+def test_the_weights_apply_to_the_named_action_dims_only():
+    """`loss_weight_dims`: by hand, 2 samples x 2 steps x 3 dims, the second step of sample 1 padded."""
+    from lerobot_bavo.policies.maniflow.modeling_maniflow import weighted_loss_mask
+
+    pad = torch.ones(2, 2, 3)
+    pad[1, 1] = 0.0
+    weights = torch.tensor([0.0, 4.0])
+    every = weighted_loss_mask(weights, None, 3, pad)
+    assert every.tolist() == [[[0, 0, 0], [0, 0, 0]], [[4, 4, 4], [0, 0, 0]]]
+    some = weighted_loss_mask(weights, (0, 2), 3, pad)
+    assert some.tolist() == [[[0, 1, 0], [0, 1, 0]], [[4, 1, 4], [0, 0, 0]]]
+
+
+@pytest.mark.parametrize("bad", [(21,), (-1,), (3, 3)])
+def test_loss_weight_dims_must_be_distinct_action_indices(bad):
+    with pytest.raises(ValueError, match="loss_weight_dims"):
+        make_policy(loss_weight_dims=bad)
+
+
+def test_weights_on_every_action_dim_are_the_weights_on_all():
+    """Naming all 21 dims gives the loss of None (the default); naming some gives another."""
+    plain = make_policy(sample_weights=True)
+    labels = torch.ones(4, plain.config.n_obs_steps, 1)
+    labels[[0, 2], -1] = 0.0
+    batch = {**make_batch(plain), TEACHER_SAMPLE_WEIGHT: labels}
+    reference = loss_of(plain, batch)
+    for dims, same in ((tuple(range(21)), True), (tuple(range(14)), False)):
+        other = make_policy(sample_weights=True, loss_weight_dims=dims)
+        other.load_state_dict(plain.state_dict())
+        assert (loss_of(other, batch) == pytest.approx(reference, rel=1e-5)) is same

@@ -86,6 +86,7 @@ def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
     assert ship.weighted({"root": "r", "episodes": 100, "condition": "stage"}) == ""
     random_source = {"condition": "random", "outside_recovery_weight": 0.0}
     assert "weigh 0.0 in the action losses" in ship.weighted(random_source)
+    assert "recoveries' frames weigh 0.5" in ship.weighted({"condition": "random", "recovery_weight": 0.5})
     text = ship.mixed_data_text({"episodes": 200, "frames": 97071, "mixed_from": [
         {"root": "s", "episodes": 100, "condition": "stage"},
         {"root": "r", "episodes": 100, "condition": "random", "outside_recovery_weight": 0.0}]}, "")

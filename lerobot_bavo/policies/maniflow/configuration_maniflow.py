@@ -226,6 +226,11 @@ class ManiFlowConfig(PreTrainedConfig):
             of another occlusion condition can then teach the recovery without also teaching their
             manipulation (docs/results/random_time.md: Random-time demonstrations cost the Stage handoff).
             False (default) ignores the label; inference is unchanged.
+        loss_weight_dims: The action dimensions that the per-sample weights above (`recovery_weight`,
+            `sample_weights`) apply to; the others weigh 1 in every sample. None (default): all of them.
+            Why: one frame can teach one part of the action and not another, e.g. a recovery teaches BAVO's
+            camera arm (dims 14-20) what to do while the two arms (0-13) wait, a wait the Stage episodes only
+            show at their phase transitions (docs/results/random_time.md).
         compile: Compile the networks with `torch.compile` (point and state encoders, DiT-X, and A-FAR's
             WorldQueryFormer and relational losses; online and EMA copies): fewer, fused kernels, for CUDA
             training where a step is bound by kernel launches and Python (docs/gpu.md). Off by default: the
@@ -305,6 +310,7 @@ class ManiFlowConfig(PreTrainedConfig):
     occluder_dropout_in_recovery: bool = True
     recovery_weight: float = 1.0
     sample_weights: bool = False
+    loss_weight_dims: tuple[int, ...] | None = None
 
     # Training speed (docs/gpu.md).
     compile: bool = False
@@ -444,6 +450,15 @@ class ManiFlowConfig(PreTrainedConfig):
                 f"`ignored_state_dims` {list(self.ignored_state_dims)} must be distinct indices of the "
                 f"{state_dim}-dim '{OBS_STATE}'" + (f"; {bad} are not." if bad else "; some repeat.")
             )
+        if self.output_features and ACTION in self.output_features and self.loss_weight_dims is not None:
+            self.loss_weight_dims = tuple(int(d) for d in self.loss_weight_dims)
+            action_dim = int(self.output_features[ACTION].shape[0])
+            bad = [d for d in self.loss_weight_dims if not 0 <= d < action_dim]
+            if bad or len(set(self.loss_weight_dims)) != len(self.loss_weight_dims):
+                raise ValueError(
+                    f"`loss_weight_dims` {list(self.loss_weight_dims)} must be distinct indices of the "
+                    f"{action_dim}-dim '{ACTION}'" + (f"; {bad} are not." if bad else "; some repeat.")
+                )
         if self.output_features and ACTION not in self.output_features:
             raise ValueError(f"{type(self).__name__} needs '{ACTION}' among the output features.")
         if self.output_features:

@@ -350,6 +350,19 @@ class DiTX(nn.Module):
 # ------------------------------------------------------------------------------------------------------------
 
 
+def weighted_loss_mask(weights: Tensor, dims: tuple[int, ...] | None, action_dim: int,
+                       mask: Tensor) -> Tensor:
+    """The (B, H, A) element weights of the action losses: `mask` (1 where an action step is real, 0 where
+    padded) times each sample's weight (`weights`, (B,)) on the action dimensions `dims` (None: all of them);
+    the other dimensions keep weight 1."""
+    w = weights[:, None, None].expand(-1, 1, action_dim)
+    if dims is not None:
+        on = torch.zeros(action_dim, dtype=torch.bool, device=weights.device)
+        on[list(dims)] = True
+        w = torch.where(on, w, torch.ones_like(w))
+    return mask * w
+
+
 def snap_binary_dims(actions: Tensor, dims: tuple[int, ...],
                      levels: tuple[float, ...] = (-1.0, 1.0)) -> Tensor:
     """MIN_MAX-normalised actions (..., A) with the given dimensions snapped to the nearest of `levels`
@@ -880,7 +893,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
             mask = (~batch["action_is_pad"]).to(dtype)[:, :, None].expand_as(x1)
         weights = self.loss_weights(batch)
         if weights is not None:  # a weighted mean: each sample's elements count `weight` times
-            mask = (torch.ones_like(x1) if mask is None else mask) * weights.to(dtype)[:, None, None]
+            mask = weighted_loss_mask(weights.to(dtype), cfg.loss_weight_dims, x1.shape[-1],
+                                      torch.ones_like(x1) if mask is None else mask)
 
         def mse(pred: Tensor, target: Tensor, sl: slice) -> Tensor:
             err = (pred - target) ** 2
