@@ -350,6 +350,8 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         extra.append(f"--policy.recovery_weight={pol['recovery_weight']}")
     if pol.get("sample_weights"):  # the per-frame weights of a view joined by scripts/mix_views.py
         extra.append("--policy.sample_weights=true")
+    if pol.get("loss_weight_dims") is not None:
+        extra.append("--policy.loss_weight_dims=[" + ",".join(str(d) for d in pol["loss_weight_dims"]) + "]")
     binary = config.get("binary_action_dims", [6, 13])
     teacher_text = ". Teacher features are training-only."
     levels = [float(v) for v in config.get("binary_action_levels", [-1.0, 1.0])]
