@@ -55,8 +55,9 @@ TEACHER_OCCLUDER = f"{TEACHER_PREFIX}.occluder"
 # (`--policy.recovery_weight`). Not part of a collected dataset.
 TEACHER_RECOVERING = f"{TEACHER_PREFIX}.recovering"
 # (1,) float32 >= 0, each frame's weight in the action losses: written by `scripts/mix_views.py` when a source
-# of a joined view is kept for its recoveries only (its other frames weighted down), read by
-# `--policy.sample_weights`. Not part of a collected dataset.
+# of a joined view is given a weight (`--source ROOT:EPISODES:WEIGHT`: its frames outside the view recoveries,
+# or with `--weigh recovery` its recovery frames, weigh WEIGHT), read by `--policy.sample_weights`. Not part
+# of a collected dataset.
 TEACHER_SAMPLE_WEIGHT = f"{TEACHER_PREFIX}.sample_weight"
 
 # Dataset annotations (never reach a policy).

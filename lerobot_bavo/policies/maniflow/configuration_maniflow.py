@@ -222,9 +222,10 @@ class ManiFlowConfig(PreTrainedConfig):
         sample_weights: Weight each training sample in the flow-matching and consistency losses by its
             frame's training-only label `observation.teacher.sample_weight` (times `recovery_weight`'s
             weight), which `scripts/mix_views.py --source ROOT:EPISODES:WEIGHT` writes when it joins a view
-            whose frames outside the demonstrator's view recoveries should count less. Why: demonstrations
-            of another occlusion condition can then teach the recovery without also teaching their
-            manipulation (docs/results/random_time.md: Random-time demonstrations cost the Stage handoff).
+            whose frames outside the demonstrator's view recoveries (or, `--weigh recovery`, whose recovery
+            frames) should count differently. Why: demonstrations of another occlusion condition can then
+            teach the recovery without also teaching all of their manipulation (docs/results/random_time.md:
+            Random-time demonstrations cost the Stage handoff).
             False (default) ignores the label; inference is unchanged.
         loss_weight_dims: The action dimensions that the per-sample weights above (`recovery_weight`,
             `sample_weights`) apply to; the others weigh 1 in every sample. None (default): all of them.
