@@ -539,8 +539,12 @@ def recovering_frames(batch: dict[str, Tensor], option: str, opt_out: str) -> Te
             f"again with `python -m lerobot_bavo.datasets.views --view points` (a dataset with occlusion "
             f"annotations), or {opt_out}."
         )
-    label = batch[TEACHER_RECOVERING]
-    return label.reshape(label.shape[0], -1)[:, -1] > 0.5
+    return last_observation_step(batch[TEACHER_RECOVERING]) > 0.5
+
+
+def last_observation_step(label: Tensor) -> Tensor:
+    """(B,) the current frame's value of a per-frame training label batched as (B, To, 1) or (B, 1)."""
+    return label.reshape(label.shape[0], -1)[:, -1]
 
 
 class ManiFlowPolicy(PreTrainedPolicy):
@@ -847,8 +851,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
                 "the training view with `scripts/mix_views.py --source ROOT:EPISODES:WEIGHT`, or set "
                 "--policy.sample_weights=false."
             )
-        label = batch[TEACHER_SAMPLE_WEIGHT]
-        label = label.reshape(label.shape[0], -1)[:, -1].to(torch.float32)
+        label = last_observation_step(batch[TEACHER_SAMPLE_WEIGHT]).to(torch.float32)
         return label if weights is None else weights * label
 
     def flow_loss(self, points: Tensor, states: Tensor, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
