@@ -151,8 +151,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--source", action="append", type=parse_source, required=True,
                     help="ROOT:EPISODES[:WEIGHT], a training view and how many of its first episodes to "
-                         "keep; with WEIGHT, its frames outside the view recoveries weigh WEIGHT in the "
-                         "action losses (--policy.sample_weights=true); repeat")
+                         "keep; with WEIGHT, the frames --weigh names weigh WEIGHT in the action losses "
+                         "(--policy.sample_weights=true); repeat")
     ap.add_argument("--weigh", choices=WEIGH, default="outside-recovery",
                     help="which frames of a ROOT:EPISODES:WEIGHT source weigh WEIGHT: those outside the view "
                          "recoveries (default) or the recoveries; the other frames weigh 1")
