@@ -36,13 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_bavo.datasets.metadata import SIDECAR, read_sidecar
+from lerobot_bavo.datasets.metadata import MIX_WEIGHT_KEYS, SIDECAR, read_sidecar
 from lerobot_bavo.datasets.views import drop_stale_episode_columns, view_source
 from lerobot_bavo.features import TEACHER_RECOVERING, TEACHER_SAMPLE_WEIGHT
 
-WEIGH = ("outside-recovery", "recovery")  # which frames of a ROOT:EPISODES:WEIGHT source weigh WEIGHT
-# the collection record's name for each: the weight of a source's ... frames
-WEIGHT_KEYS = {"outside-recovery": "outside_recovery_weight", "recovery": "recovery_weight"}
+WEIGH = tuple(MIX_WEIGHT_KEYS)  # which frames of a ROOT:EPISODES:WEIGHT source weigh WEIGHT
 
 
 def parse_source(text: str) -> tuple[Path, int, float | None]:
@@ -122,7 +120,7 @@ def mixed_record(records: list[dict], counts: list[int], roots: list[Path], repo
         "episodes": episodes,
         "mixed_from": [
             {"root": str(view_source(root)), "episodes": count, "condition": cond,
-             **({} if weight is None else {WEIGHT_KEYS[weigh]: weight})}
+             **({} if weight is None else {MIX_WEIGHT_KEYS[weigh]: weight})}
             for root, count, cond, weight in zip(roots, counts, conditions, weights, strict=True)
         ],
     }

@@ -28,6 +28,7 @@ import shutil
 from datetime import datetime
 from pathlib import Path
 
+from lerobot_bavo.datasets.metadata import MIX_WEIGHT_KEYS
 from lerobot_bavo.demo import SHIPPED_CHECKPOINT as DEMO_CHECKPOINT
 
 FILES = ("config.json", "model.safetensors", "train_config.json")
@@ -213,7 +214,8 @@ METHODS = {  # policy type -> (name on the card, what it is)
 
 def weighted(source: dict) -> str:
     """What a joined view's source entry says of its loss weights (`mix_views.py --source ROOT:N:WEIGHT`)."""
-    outside, inside = source.get("outside_recovery_weight"), source.get("recovery_weight")
+    outside = source.get(MIX_WEIGHT_KEYS["outside-recovery"])
+    inside = source.get(MIX_WEIGHT_KEYS["recovery"])
     if outside is not None:
         return f"; frames outside the view recoveries weigh {outside} in the action losses"
     if inside is not None:
