@@ -212,21 +212,42 @@ METHODS = {  # policy type -> (name on the card, what it is)
 }
 
 
-def weighted(source: dict) -> str:
-    """What a joined view's source entry says of its loss weights (`mix_views.py --source ROOT:N:WEIGHT`)."""
+def weighted(source: dict, dims: list[int] | None = None, applied: bool = True) -> str:
+    """What a joined view's source entry says of its loss weights (`mix_views.py --source ROOT:N:WEIGHT`):
+    in the action losses, or only in the action dims `dims` (`--policy.loss_weight_dims`); and that the
+    weights went unused when the training did not read them (`applied`: `--policy.sample_weights`)."""
     outside = source.get(MIX_WEIGHT_KEYS["outside-recovery"])
     inside = source.get(MIX_WEIGHT_KEYS["recovery"])
+    if outside is None and inside is None:
+        return ""
+    if not applied:
+        return "; its per-frame loss weights unused: trained without `--policy.sample_weights`"
+    where = ("in the action losses" if dims is None
+             else f"in action dims {dims_text(dims)} of the action losses, 1 in the others")
     if outside is not None:
-        return f"; frames outside the view recoveries weigh {outside} in the action losses"
-    if inside is not None:
-        return f"; the view recoveries' frames weigh {inside} in the action losses"
-    return ""
+        return f"; frames outside the view recoveries weigh {outside} {where}"
+    return f"; the view recoveries' frames weigh {inside} {where}"
 
 
-def mixed_data_text(data: dict, noise_text: str) -> str:
-    """The card's data sentence for a view joined by `scripts/mix_views.py` (a documented data variant)."""
-    parts = "; ".join(f"the first {m['episodes']} episodes of `{m['root']}` ({m['condition']}{weighted(m)})"
-                      for m in data["mixed_from"])
+def dims_text(dims: list[int]) -> str:
+    """[0, 1, 2, 5] -> '0-2, 5': action dims as ranges."""
+    runs: list[list[int]] = []
+    for d in sorted(dims):
+        if runs and d == runs[-1][-1] + 1:
+            runs[-1].append(d)
+        else:
+            runs.append([d])
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs)
+
+
+def mixed_data_text(data: dict, noise_text: str, pol: dict | None = None) -> str:
+    """The card's data sentence for a view joined by `scripts/mix_views.py` (a documented data variant);
+    `pol`, the trained policy's config, says whether and where the view's loss weights were used (None: used,
+    in every action dim)."""
+    applied = True if pol is None else bool(pol.get("sample_weights", False))
+    dims = None if pol is None else pol.get("loss_weight_dims")
+    parts = "; ".join(f"the first {m['episodes']} episodes of `{m['root']}` "
+                      f"({m['condition']}{weighted(m, dims, applied)})" for m in data["mixed_from"])
     return (f"a data variant, not the paper's protocol: `scripts/mix_views.py` joined the `points` views of "
             f"{parts} ({noise_text}{data['episodes']} episodes, {data['frames']:,} frames, simulator-exact "
             "teacher; each source's collection command and seeds are in its `meta/bavo_collection.json`).")
@@ -332,7 +353,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
             if noise
             else ""
         )
-        data_text = mixed_data_text(data, noise_text) if mixed else (
+        data_text = mixed_data_text(data, noise_text, pol) if mixed else (
             f"`bavo-collect --task {task} --condition {data['condition']} --episodes "
             f"{data['episodes']} "
             f"--repo-id {data['repo_id']} --root {data['root']} --workers 2{noise_flag}` "

@@ -91,3 +91,10 @@ def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
         {"root": "s", "episodes": 100, "condition": "stage"},
         {"root": "r", "episodes": 100, "condition": "random", "outside_recovery_weight": 0.0}]}, "")
     assert "(stage)" in text and "(random; frames outside the view recoveries weigh 0.0" in text
+    data = {"episodes": 200, "frames": 97071, "mixed_from": [
+        {"root": "r", "episodes": 100, "condition": "random", "recovery_weight": 0.0}]}
+    camera_only = ship.mixed_data_text(data, "", {"sample_weights": True, "loss_weight_dims": [*range(14)]})
+    assert "recoveries' frames weigh 0.0 in action dims 0-13 of the action losses, 1 in" in camera_only
+    unused = ship.mixed_data_text(data, "", {"sample_weights": False})
+    assert "weights unused" in unused and "weigh 0.0" not in unused
+    assert ship.dims_text([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
