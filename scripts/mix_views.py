@@ -19,10 +19,11 @@ one written here: the first source's settings, with `condition` naming the mix (
 A source given as ROOT:EPISODES:WEIGHT is kept for its view recoveries: its frames outside the
 demonstrator's recoveries (the points view's label `observation.teacher.recovering` is 0) weigh WEIGHT in the
 action losses, every other frame 1. With `--weigh recovery` it is the other way round: the source's recovery
-frames weigh WEIGHT, its other frames 1. The joined view then carries the per-frame label
+frames weigh WEIGHT, its other frames 1; with `--weigh all` every frame of the source weighs WEIGHT. The joined view then carries the per-frame label
 `observation.teacher.sample_weight`, which `--policy.sample_weights=true` reads (0 leaves only the recoveries
-of that source in the losses, or only its other frames; `--policy.loss_weight_dims` limits the weight to some
-action dimensions).
+of that source in the losses, or only its other frames, or none; `--policy.loss_weight_dims` limits the weight
+to some action dimensions, so `--weigh all` with WEIGHT 0 and the arms' dims leaves the source teaching the
+camera arm only).
 """
 
 from __future__ import annotations
@@ -69,11 +70,12 @@ def frame_weights(episode_index: np.ndarray, recovering: np.ndarray, episode_wei
     """(frames, 1) float32 loss weights: the weight of the frame's episode (`episode_weight[episode_index]`, 1
     for episodes of an unweighted source) on the frames `weigh` names, 1 on the others. `weigh`:
     "outside-recovery", the frames the demonstrator did not spend recovering the view (`recovering` <= 0.5),
-    or "recovery", those it did."""
+    "recovery", those it did, or "all", every frame."""
     if weigh not in WEIGH:
         raise ValueError(f"weigh must be one of {WEIGH}, got {weigh!r}")
     recovering = np.asarray(recovering).reshape(-1) > 0.5
-    weighted = ~recovering if weigh == "outside-recovery" else recovering
+    weighted = {"outside-recovery": ~recovering, "recovery": recovering,
+                "all": np.ones_like(recovering)}[weigh]
     episode = np.asarray(episode_weight, dtype=np.float32)[np.asarray(episode_index).reshape(-1)]
     return np.where(weighted, episode, np.float32(1.0)).astype(np.float32).reshape(-1, 1)
 
@@ -153,7 +155,7 @@ def main(argv: list[str] | None = None) -> None:
                          "(--policy.sample_weights=true); repeat")
     ap.add_argument("--weigh", choices=WEIGH, default="outside-recovery",
                     help="which frames of a ROOT:EPISODES:WEIGHT source weigh WEIGHT: those outside the view "
-                         "recoveries (default) or the recoveries; the other frames weigh 1")
+                         "recoveries (default), the recoveries, or all its frames; the other frames weigh 1")
     ap.add_argument("--output", type=Path, required=True, help="the joined view's folder (ends in _points)")
     ap.add_argument("--repo-id", default=None, help="default local/<output folder name>")
     args = ap.parse_args(argv)

@@ -218,12 +218,15 @@ def weighted(source: dict, dims: list[int] | None = None, applied: bool = True) 
     weights went unused when the training did not read them (`applied`: `--policy.sample_weights`)."""
     outside = source.get(MIX_WEIGHT_KEYS["outside-recovery"])
     inside = source.get(MIX_WEIGHT_KEYS["recovery"])
-    if outside is None and inside is None:
+    every = source.get(MIX_WEIGHT_KEYS["all"])
+    if outside is None and inside is None and every is None:
         return ""
     if not applied:
         return "; its per-frame loss weights unused: trained without `--policy.sample_weights`"
     where = ("in the action losses" if dims is None
              else f"in action dims {dims_text(dims)} of the action losses, 1 in the others")
+    if every is not None:
+        return f"; every frame weighs {every} {where}"
     if outside is not None:
         return f"; frames outside the view recoveries weigh {outside} {where}"
     return f"; the view recoveries' frames weigh {inside} {where}"

@@ -698,5 +698,9 @@ def test_mix_views_source_weights_and_frame_weights_by_hand():
     got = mix.frame_weights(np.array([0, 0, 1, 2, 2, 2]), np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0]),
                             np.array([1.0, 1.0, 0.25]), weigh="recovery")
     assert got[:, 0].tolist() == [1.0, 1.0, 1.0, 0.25, 1.0, 1.0]
+    # --weigh all: every frame of the weighted source, recovering or not; the others keep 1
+    got = mix.frame_weights(np.array([0, 0, 1, 2, 2, 2]), np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0]),
+                            np.array([1.0, 1.0, 0.0]), weigh="all")
+    assert got[:, 0].tolist() == [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
     with pytest.raises(ValueError, match="weigh"):
-        mix.frame_weights(np.array([0]), np.array([0.0]), np.array([1.0]), weigh="all")
+        mix.frame_weights(np.array([0]), np.array([0.0]), np.array([1.0]), weigh="every")

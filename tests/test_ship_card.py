@@ -87,6 +87,8 @@ def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
     random_source = {"condition": "random", "outside_recovery_weight": 0.0}
     assert "weigh 0.0 in the action losses" in ship.weighted(random_source)
     assert "recoveries' frames weigh 0.5" in ship.weighted({"condition": "random", "recovery_weight": 0.5})
+    assert ship.weighted({"condition": "random", "all_frames_weight": 0.0}, [*range(14)]) == (
+        "; every frame weighs 0.0 in action dims 0-13 of the action losses, 1 in the others")
     text = ship.mixed_data_text({"episodes": 200, "frames": 97071, "mixed_from": [
         {"root": "s", "episodes": 100, "condition": "stage"},
         {"root": "r", "episodes": 100, "condition": "random", "outside_recovery_weight": 0.0}]}, "")

@@ -14,7 +14,8 @@ SIDECAR = Path("meta") / "bavo_collection.json"
 CODEBASE_VERSION = "v3.0"
 # A joined view's `mixed_from` entries (`scripts/mix_views.py --weigh W --source ROOT:N:WEIGHT`) record
 # WEIGHT under the key for W: the weight, in the action losses, of the source's frames W names.
-MIX_WEIGHT_KEYS = {"outside-recovery": "outside_recovery_weight", "recovery": "recovery_weight"}
+MIX_WEIGHT_KEYS = {"outside-recovery": "outside_recovery_weight", "recovery": "recovery_weight",
+                   "all": "all_frames_weight"}
 
 
 def read_info(root: str | Path) -> dict:
