@@ -147,7 +147,7 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 # Random-time episodes kept for their view recoveries only (ro: their other frames weighted 0), and with
 # their recoveries teaching the camera arm only (rc: the arms' dims of their recovery frames weighted 0)
 DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_cpu_mlp3.5",
-                 "mixsr200sf_ft", "mixsr150sf", "mixsr200sfro", "mixsr200sfrc", "mixsroc200sf", "sf")
+                 "mixsr200sf_ft", "mixsr150sf", "mixsr200sfro", "mixsr200sfrc", "mixsr200sfca", "mixsroc200sf", "sf")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
