@@ -19,7 +19,8 @@ one written here: the first source's settings, with `condition` naming the mix (
 A source given as ROOT:EPISODES:WEIGHT is kept for its view recoveries: its frames outside the
 demonstrator's recoveries (the points view's label `observation.teacher.recovering` is 0) weigh WEIGHT in the
 action losses, every other frame 1. With `--weigh recovery` it is the other way round: the source's recovery
-frames weigh WEIGHT, its other frames 1; with `--weigh all` every frame of the source weighs WEIGHT. The joined view then carries the per-frame label
+frames weigh WEIGHT, its other frames 1; with `--weigh all` every frame of the source weighs WEIGHT. The
+joined view then carries the per-frame label
 `observation.teacher.sample_weight`, which `--policy.sample_weights=true` reads (0 leaves only the recoveries
 of that source in the losses, or only its other frames, or none; `--policy.loss_weight_dims` limits the weight
 to some action dimensions, so `--weigh all` with WEIGHT 0 and the arms' dims leaves the source teaching the
