@@ -212,24 +212,25 @@ METHODS = {  # policy type -> (name on the card, what it is)
 }
 
 
+# what the frames each `mix_views.py --weigh` mode weights are called on a card, followed by the weight
+WEIGHED_FRAMES = {"outside-recovery": "frames outside the view recoveries weigh",
+                  "recovery": "the view recoveries' frames weigh", "all": "every frame weighs"}
+
+
 def weighted(source: dict, dims: list[int] | None = None, applied: bool = True) -> str:
     """What a joined view's source entry says of its loss weights (`mix_views.py --source ROOT:N:WEIGHT`):
     in the action losses, or only in the action dims `dims` (`--policy.loss_weight_dims`); and that the
     weights went unused when the training did not read them (`applied`: `--policy.sample_weights`)."""
-    outside = source.get(MIX_WEIGHT_KEYS["outside-recovery"])
-    inside = source.get(MIX_WEIGHT_KEYS["recovery"])
-    every = source.get(MIX_WEIGHT_KEYS["all"])
-    if outside is None and inside is None and every is None:
+    found = [(WEIGHED_FRAMES[weigh], source[key]) for weigh, key in MIX_WEIGHT_KEYS.items()
+             if source.get(key) is not None]
+    if not found:
         return ""
     if not applied:
         return "; its per-frame loss weights unused: trained without `--policy.sample_weights`"
     where = ("in the action losses" if dims is None
              else f"in action dims {dims_text(dims)} of the action losses, 1 in the others")
-    if every is not None:
-        return f"; every frame weighs {every} {where}"
-    if outside is not None:
-        return f"; frames outside the view recoveries weigh {outside} {where}"
-    return f"; the view recoveries' frames weigh {inside} {where}"
+    frames, weight = found[0]
+    return f"; {frames} {weight} {where}"
 
 
 def dims_text(dims: list[int]) -> str:
