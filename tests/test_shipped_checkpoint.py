@@ -141,12 +141,12 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 
 
 # data variants beside the recipe (docs/training.md): 50 (100) Stage + 50 (100) Random-time demonstrations;
-# self-filtered clouds (sf); the self-filtered 100 + 100 at 1.5x the recipe's budget (b1.5x) and with the
-# larger shippable model (cpu_mlp3.5: `PRESET=cpu --policy.dit_mlp_ratio=3.5`, float16); the Stage-only
-# self-filtered recipe fine-tuned on the self-filtered 100 + 100 (ft); the self-filtered 100 + 100 with the
-# Random-time episodes kept for their view recoveries only (ro: their other frames weighted 0), and with
-# their recoveries teaching the camera arm only (rc: the arms' dims of their recovery frames weighted 0), and
-# with all their frames teaching the camera arm only (ca: the arms' dims of every Random-time frame
+# self-filtered clouds (sf); the self-filtered 100 + 100 at 1.5x and 2x the recipe's budget (b1.5x, b2x) and
+# with the larger shippable model (cpu_mlp3.5: `PRESET=cpu --policy.dit_mlp_ratio=3.5`, float16); the
+# Stage-only self-filtered recipe fine-tuned on the self-filtered 100 + 100 (ft); the self-filtered 100 + 100
+# with the Random-time episodes kept for their view recoveries only (ro: their other frames weighted 0), and
+# with their recoveries teaching the camera arm only (rc: the arms' dims of their recovery frames weighted 0),
+# and with all their frames teaching the camera arm only (ca: the arms' dims of every Random-time frame
 # weighted 0); the Stage-only self-filtered recipe at half its samples (sf_half)
 DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_b2x",
                  "mixsr200sf_cpu_mlp3.5", "mixsr200sf_ft", "mixsr150sf", "mixsr200sfro", "mixsr200sfrc",
