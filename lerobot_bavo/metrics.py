@@ -173,6 +173,19 @@ def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float,
     return 100.0 * float(max(0.0, centre - half)), 100.0 * float(min(1.0, centre + half))
 
 
+def mcnemar_exact_p(only_a: int, only_b: int) -> float:
+    """Two-sided exact McNemar p-value for two policies run on the same episode seeds.
+
+    Why: comparing two checkpoints on the same seeds, the episodes both win or both lose say nothing about
+    which is better; the discordant ones (`only_a` won by A alone, `only_b` by B alone) are, under no
+    difference, Binomial(only_a + only_b, 1/2). p = min(1, 2 P(X <= min(only_a, only_b)))."""
+    if only_a < 0 or only_b < 0:
+        raise ValueError(f"need discordant counts >= 0, got {only_a} and {only_b}")
+    n = only_a + only_b
+    tail = sum(math.comb(n, i) for i in range(min(only_a, only_b) + 1))
+    return min(1.0, 2.0 * tail / 2**n)
+
+
 def joint_score(sr_percent: float, cvg_pp: float | None) -> float | None:
     """Joint = SR x CVG / 100 (Table 4), with SR in percent and CVG in pp; None if CVG is None."""
     if cvg_pp is None:

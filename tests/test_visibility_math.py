@@ -192,3 +192,38 @@ def test_wilson_interval_by_hand():
     assert wilson_interval(19, 40) == pytest.approx((32.94, 62.50), abs=0.01)
     with pytest.raises(ValueError):
         wilson_interval(3, 2)
+
+
+def test_mcnemar_exact_p_by_hand():
+    """Exact two-sided McNemar: 0 vs 5 discordant is 2 / 2^5; 1 vs 4 is 2 (1 + 5) / 2^5; a tie is 1."""
+    from lerobot_bavo.metrics import mcnemar_exact_p
+
+    assert mcnemar_exact_p(0, 5) == pytest.approx(2 / 32)
+    assert mcnemar_exact_p(4, 1) == pytest.approx(12 / 32)
+    assert mcnemar_exact_p(3, 3) == 1.0
+    assert mcnemar_exact_p(0, 0) == 1.0
+    with pytest.raises(ValueError):
+        mcnemar_exact_p(-1, 2)
+
+
+def test_paired_outcomes_matches_episodes_by_seed(tmp_path, capsys):
+    """Episodes pair on (task, condition, seed) whatever their order; one only in A is left out."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "paired_outcomes", Path(__file__).resolve().parent.parent / "scripts" / "paired_outcomes.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    def rows(outcomes):
+        return [{"task": "t", "condition": "stage", "seed": s, "success": w} for s, w in outcomes]
+
+    a = rows([(1, True), (2, True), (3, False), (4, True)])
+    b = rows([(3, True), (2, True), (1, False)])
+    assert module.paired_counts(a, b) == {"stage": (3, 2, 1, 1)}
+    for name, rows in (("a.jsonl", a), ("b.jsonl", b)):
+        (tmp_path / name).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    module.main([f"{tmp_path / 'a.jsonl'}={tmp_path / 'b.jsonl'}"])
+    assert "stage: 3 paired episodes, A won 2, B 2; A only 1, B only 1; McNemar exact p = 1.000" in \
+        capsys.readouterr().out

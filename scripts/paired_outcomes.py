@@ -1,0 +1,63 @@
+"""Paired success counts and exact McNemar p-values of two `bavo-eval` runs on the same episode seeds.
+
+Why: the write-ups in docs/results/ compare checkpoints (another recipe, another schedule) evaluated on the
+same test seeds; pairing the episodes by (task, condition, seed) and testing only the discordant ones is
+sharper than comparing two SRs with their own intervals. Several `A=B` pairs (e.g. one per training seed)
+are pooled: their discordant counts add up.
+
+    python scripts/paired_outcomes.py \\
+        outputs/eval/test_cube_sf_b2x_s1000/episodes.jsonl=docs/results/grid_table/runs/afar-self-filter/s1000/cube_handoff/episodes.jsonl.gz
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from lerobot_bavo.eval.run import read_episode_records
+from lerobot_bavo.metrics import mcnemar_exact_p
+
+
+def paired_counts(a: list[dict], b: list[dict]) -> dict[str, tuple[int, int, int, int]]:
+    """Per condition (episodes in both runs, A's successes, won by A only, won by B only), the episodes
+    matched on (task, condition, seed)."""
+    b_by_key = {(r["task"], r["condition"], r["seed"]): bool(r["success"]) for r in b}
+    counts: dict[str, list[int]] = {}
+    for r in a:
+        key = (r["task"], r["condition"], r["seed"])
+        if key not in b_by_key:
+            continue
+        won_a, won_b = bool(r["success"]), b_by_key[key]
+        c = counts.setdefault(r["condition"], [0, 0, 0, 0])
+        c[0] += 1
+        c[1] += won_a
+        c[2] += won_a and not won_b
+        c[3] += won_b and not won_a
+    return {cond: tuple(c) for cond, c in counts.items()}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("pairs", nargs="+", metavar="A_LOG=B_LOG",
+                        help="two episode logs (episodes.jsonl or .jsonl.gz) of runs on the same seeds")
+    args = parser.parse_args(argv)
+    pooled: dict[str, list[int]] = {}
+    for pair in args.pairs:
+        a_path, sep, b_path = pair.partition("=")
+        if not sep or not a_path or not b_path:
+            parser.error(f"want A_LOG=B_LOG, got {pair!r}")
+        for path in (a_path, b_path):
+            if not Path(path).is_file():
+                parser.error(f"no episode log at {path}")
+        counts = paired_counts(read_episode_records(Path(a_path)), read_episode_records(Path(b_path)))
+        if not counts:
+            parser.error(f"{a_path} and {b_path} share no (task, condition, seed) episode")
+        for cond, c in counts.items():
+            pooled[cond] = [x + y for x, y in zip(pooled.get(cond, [0, 0, 0, 0]), c, strict=True)]
+    for cond, (n, wins_a, only_a, only_b) in sorted(pooled.items()):
+        print(f"{cond}: {n} paired episodes, A won {wins_a}, B {wins_a - only_a + only_b}; "
+              f"A only {only_a}, B only {only_b}; McNemar exact p = {mcnemar_exact_p(only_a, only_b):.3f}")
+
+
+if __name__ == "__main__":
+    main()
