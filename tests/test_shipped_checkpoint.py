@@ -150,7 +150,7 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 # weighted 0); the Stage-only self-filtered recipe at half and twice its samples (sf_half, sf_b2x)
 DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_b2x",
                  "mixsr200sf_cpu_mlp3.5", "mixsr200sf_ft", "mixsr150sf", "mixsr200sfro", "mixsr200sfrc",
-                 "mixsr200sfca", "mixsroc200sf", "sf", "sf_b2x", "sf_half")
+                 "mixsr200sfca", "mixsroc200sf", "mixsr400sf", "sf", "sf_b2x", "sf_half")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
