@@ -149,3 +149,18 @@ def test_worker_pool_skips_lerobot_for_scripted_experts(tmp_path, monkeypatch, p
         evaluate(policy, [TASK], ["clean"], episodes=2, seed=0, output_dir=tmp_path / "out", workers=2,
                  videos=0)
     assert made == [(2, light)]
+
+
+def test_results_name_a_checkpoint_relative_to_the_working_directory_when_inside_it(tmp_path):
+    from lerobot_bavo.eval.run import checkpoint_label
+
+    project = tmp_path / "project"
+    (project / "checkpoints" / "afar_x").mkdir(parents=True)
+    outside = tmp_path / "elsewhere" / "afar_y"
+    outside.mkdir(parents=True)
+    (tmp_path / "link").symlink_to(project)
+    assert checkpoint_label(str(project / "checkpoints" / "afar_x"), cwd=project) == "checkpoints/afar_x"
+    # another spelling of the same folder (a symlinked working directory) gives the same label
+    label = checkpoint_label(str(project / "checkpoints" / "afar_x"), cwd=tmp_path / "link")
+    assert label == "checkpoints/afar_x"
+    assert checkpoint_label(str(outside), cwd=project) == str(outside.resolve())

@@ -176,6 +176,17 @@ def env_kwargs_for_run(policy: str, point_frame: str | None = None) -> dict:
     return kwargs
 
 
+def checkpoint_label(policy: str, cwd: Path | None = None) -> str:
+    """How results name a checkpoint folder: relative to the working directory when it lies inside it, so that
+    logs committed from a project checkout name `checkpoints/...` rather than one machine's absolute path;
+    absolute otherwise. Informational only: a run resumes on the checkpoint's digest (`_identity`)."""
+    path = Path(policy).resolve()
+    try:
+        return path.relative_to((cwd or Path.cwd()).resolve()).as_posix()
+    except ValueError:
+        return str(path)
+
+
 def _identity(settings: dict) -> tuple:
     """What must match to resume a run: seed, the checkpoint's digest (the expert's name), the point frame and
     the robot self-filter.
@@ -263,7 +274,7 @@ def evaluate(policy: str, tasks: list[str], conditions: list[str], episodes: int
     if policy in EXPERT_POLICIES:
         policy_id = settings["policy"] = policy
     else:
-        policy_id = settings["policy"] = str(Path(policy).resolve())
+        policy_id = settings["policy"] = checkpoint_label(policy)
         try:  # refuse untrusted processor steps and policy types here, before any worker imports them; then
             # configs out of bounds (`lerobot_bavo.limits`) and cut-off weights, before any env or model is
             # built
