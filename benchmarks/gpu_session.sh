@@ -47,6 +47,12 @@ part scale_workers 170 python benchmarks/scale_workers.py --workers 2,16 --episo
     --json "$OUT/scale_workers.json"
 # issue 30: is one frame slower when 16 processes render on the GPU at once? (docs/results/costs.md)
 part render_contention 150 python benchmarks/render_contention.py --procs 2,16
+# the same and the scaling with every worker rendering in software on its own core (Mesa's llvmpipe, carried as
+# .device/mesa by `bash benchmarks/mesa_egl.sh prepare`, ~48 MiB: a call of its own after the installs)
+part render_contention_mesa 150 bash -c "source benchmarks/mesa_egl.sh use && \
+    python benchmarks/render_contention.py --procs 2,16"
+part scale_workers_mesa 200 bash -c "source benchmarks/mesa_egl.sh use && python benchmarks/scale_workers.py \
+    --workers 16,2 --episodes ${SCALE_EPISODES:-48} --job both --json $OUT/scale_workers_mesa.json"
 part tp_paper_b512_amp_compile 300 "${TP[@]}" --preset paper --batch 512 --use-amp \
     --new-policy-arg compile=true
 # CUDA graphs (the GPU-busy target) and the small preset compiled (its samples/s target): timed 2026-11-27
