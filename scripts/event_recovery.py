@@ -116,6 +116,11 @@ def main(argv: list[str] | None = None) -> None:
                          "was regained (V >= 0.5) instead of CVG")
     args = ap.parse_args(argv)
     condition = args.regained or "random"
+    missing = [str(p) for p in args.logs if not p.is_file()]
+    labelled = (item.partition("=")[2] for item in args.label)
+    missing += [path for path in labelled if path and not Path(path).is_file()]
+    if missing:
+        ap.error(f"no episode log at {', '.join(missing)}")
     named: list[tuple[str, list[dict]]] = [(str(p), read_episodes(p, args.task, condition))
                                            for p in args.logs]
     for item in args.label:
