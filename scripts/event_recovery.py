@@ -116,18 +116,16 @@ def main(argv: list[str] | None = None) -> None:
                          "was regained (V >= 0.5) instead of CVG")
     args = ap.parse_args(argv)
     condition = args.regained or "random"
-    missing = [str(p) for p in args.logs if not p.is_file()]
-    labelled = (item.partition("=")[2] for item in args.label)
-    missing += [path for path in labelled if path and not Path(path).is_file()]
-    if missing:
-        ap.error(f"no episode log at {', '.join(missing)}")
-    named: list[tuple[str, list[dict]]] = [(str(p), read_episodes(p, args.task, condition))
-                                           for p in args.logs]
+    logs: list[tuple[str, Path]] = [(str(p), p) for p in args.logs]
     for item in args.label:
         name, sep, path = item.partition("=")
         if not sep:
             ap.error(f"--label wants NAME=episodes.jsonl, got {item!r}")
-        named.append((name, read_episodes(Path(path), args.task, condition)))
+        logs.append((name, Path(path)))
+    if missing := [str(path) for _, path in logs if not path.is_file()]:
+        ap.error(f"no episode log at {', '.join(missing)}")
+    named: list[tuple[str, list[dict]]] = [(name, read_episodes(path, args.task, condition))
+                                           for name, path in logs]
     if args.policy is not None:
         if args.task is None:
             ap.error("--policy needs --task")
