@@ -38,6 +38,8 @@ import statistics
 from collections import defaultdict
 from pathlib import Path
 
+from lerobot_bavo.eval.run import labelled_episode_log, read_episode_records
+
 
 def per_event_index(episodes: list[dict]) -> dict[int, dict]:
     """{event index: {"n", "retained", "cvg_pp" (mean over retained, or None), "start_step" (mean)}} over
@@ -82,8 +84,6 @@ def view_regained(episodes: list[dict], threshold: float = 0.5) -> dict[tuple[in
 
 
 def read_episodes(path: Path, task: str | None, condition: str = "random") -> list[dict]:
-    from lerobot_bavo.eval.run import read_episode_records
-
     rows = read_episode_records(path)
     return [r for r in rows if r.get("condition") == condition and (task is None or r.get("task") == task)]
 
@@ -104,7 +104,8 @@ def rollout_episodes(policy: str, task: str, condition: str, seeds: range) -> li
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("logs", nargs="*", type=Path, help="bavo-eval episodes.jsonl files")
-    ap.add_argument("--label", action="append", default=[], metavar="NAME=episodes.jsonl")
+    ap.add_argument("--label", action="append", default=[], metavar="NAME=episodes.jsonl",
+                    type=labelled_episode_log)
     ap.add_argument("--task", default=None, help="only this task's episodes")
     ap.add_argument("--events", type=int, default=5, help="event indices to show (default 5)")
     ap.add_argument("--policy", default=None,
@@ -116,12 +117,7 @@ def main(argv: list[str] | None = None) -> None:
                          "was regained (V >= 0.5) instead of CVG")
     args = ap.parse_args(argv)
     condition = args.regained or "random"
-    logs: list[tuple[str, Path]] = [(str(p), p) for p in args.logs]
-    for item in args.label:
-        name, sep, path = item.partition("=")
-        if not sep:
-            ap.error(f"--label wants NAME=episodes.jsonl, got {item!r}")
-        logs.append((name, Path(path)))
+    logs: list[tuple[str, Path]] = [(str(p), p) for p in args.logs] + args.label
     if missing := [str(path) for _, path in logs if not path.is_file()]:
         ap.error(f"no episode log at {', '.join(missing)}")
     named: list[tuple[str, list[dict]]] = [(name, read_episodes(path, args.task, condition))

@@ -14,9 +14,8 @@ per training seed) are pooled: their counts add up.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from lerobot_bavo.eval.run import read_episode_records
+from lerobot_bavo.eval.run import labelled_episode_log, read_episode_records
 from lerobot_bavo.metrics import NUM_MILESTONES
 
 
@@ -42,17 +41,13 @@ def transition_rates(stops: list[int]) -> list[float | None]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--label", action="append", required=True, metavar="NAME=episodes.jsonl",
+                        type=labelled_episode_log,
                         help="a label and one episode log (.jsonl or .jsonl.gz); repeat a label to pool logs")
     parser.add_argument("--task", help="only this task's episodes (default: all)")
     args = parser.parse_args(argv)
     pooled: dict[str, list[dict]] = {}
-    for item in args.label:
-        name, sep, path = item.partition("=")
-        if not sep or not name or not path:
-            parser.error(f"want NAME=episodes.jsonl, got {item!r}")
-        if not Path(path).is_file():
-            parser.error(f"no episode log at {path}")
-        records = [r for r in read_episode_records(Path(path)) if args.task in (None, r["task"])]
+    for name, path in args.label:
+        records = [r for r in read_episode_records(path) if args.task in (None, r["task"])]
         pooled.setdefault(name, []).extend(records)
     depths = " / ".join(f"M{k}" for k in range(NUM_MILESTONES)) + " / success"
     steps = " | ".join(f"M{k}->M{k + 1}" for k in range(NUM_MILESTONES))

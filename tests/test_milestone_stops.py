@@ -45,3 +45,10 @@ def test_missing_log_is_a_usage_error(tmp_path, capsys):
     with pytest.raises(SystemExit):
         tool.main(["--label", f"a={tmp_path / 'nope.jsonl'}"])
     assert "no episode log" in capsys.readouterr().err
+
+
+def test_malformed_label_is_a_usage_error(capsys):
+    tool = load_script("scripts/milestone_stops.py")
+    with pytest.raises(SystemExit):
+        tool.main(["--label", "just-a-path.jsonl"])
+    assert "want NAME=episodes.jsonl" in capsys.readouterr().err

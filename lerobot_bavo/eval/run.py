@@ -118,6 +118,20 @@ def read_episode_records(log_path: Path) -> list[dict]:
     return _episode_records(data[: data.rfind(b"\n") + 1], log_path)
 
 
+def labelled_episode_log(text: str) -> tuple[str, Path]:
+    """`NAME=path/to/episodes.jsonl[.gz]` -> (NAME, path): the argparse `type` of the analysis scripts'
+    `--label` (scripts/event_recovery.py, scripts/milestone_stops.py), so a typo in the form or the path is
+    a usage error naming it, before any log is read."""
+    import argparse
+
+    name, sep, path = text.partition("=")
+    if not sep or not name or not path:
+        raise argparse.ArgumentTypeError(f"want NAME=episodes.jsonl, got {text!r}")
+    if not Path(path).is_file():
+        raise argparse.ArgumentTypeError(f"no episode log at {path}")
+    return name, Path(path)
+
+
 def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
     """Finished episodes of `episodes.jsonl`, keyed (task, condition, seed), for resuming a run.
 
