@@ -32,6 +32,7 @@ __all__ = [
     "aggregate_cvg",
     "success_rate",
     "task_progress_score",
+    "milestone_depth_counts",
     "wilson_interval",
     "joint_score",
     "CVGEventRecord",
@@ -148,15 +149,27 @@ def task_progress_score(depths: Sequence[int]) -> float:
     """TPS in percent: 100 x mean_i d_i / 5, with d_i in {0..5} the deepest milestone of episode i."""
     if len(depths) == 0:
         raise ValueError("task_progress_score needs at least one episode")
-    ds = []
-    for d in depths:
-        if isinstance(d, bool | np.bool_):
-            raise TypeError(f"milestone depths must be integers, got {d!r}")
-        d = operator.index(d)  # rejects floats
-        if not 0 <= d <= NUM_MILESTONES:
-            raise ValueError(f"milestone depth must be in [0, {NUM_MILESTONES}], got {d}")
-        ds.append(d)
+    ds = [_checked_depth(d) for d in depths]
     return 100.0 * sum(ds) / (NUM_MILESTONES * len(ds))
+
+
+def milestone_depth_counts(depths: Sequence[int]) -> list[int]:
+    """Episodes per deepest milestone reached, index 0..NUM_MILESTONES (the last is success): where a
+    policy's episodes stop, which SR and TPS summarise away."""
+    counts = [0] * (NUM_MILESTONES + 1)
+    for d in depths:
+        counts[_checked_depth(d)] += 1
+    return counts
+
+
+def _checked_depth(d: int) -> int:
+    """A milestone depth as an int in {0..NUM_MILESTONES}; bools and floats are errors, not depths."""
+    if isinstance(d, bool | np.bool_):
+        raise TypeError(f"milestone depths must be integers, got {d!r}")
+    d = operator.index(d)  # rejects floats
+    if not 0 <= d <= NUM_MILESTONES:
+        raise ValueError(f"milestone depth must be in [0, {NUM_MILESTONES}], got {d}")
+    return d
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:

@@ -117,9 +117,9 @@ def main(argv: list[str] | None = None) -> None:
                          "was regained (V >= 0.5) instead of CVG")
     args = ap.parse_args(argv)
     condition = args.regained or "random"
-    logs: list[tuple[str, Path]] = [(str(p), p) for p in args.logs] + args.label
-    if missing := [str(path) for _, path in logs if not path.is_file()]:
+    if missing := [str(p) for p in args.logs if not p.is_file()]:  # --label's type checked its own
         ap.error(f"no episode log at {', '.join(missing)}")
+    logs: list[tuple[str, Path]] = [(str(p), p) for p in args.logs] + args.label
     named: list[tuple[str, list[dict]]] = [(name, read_episodes(path, args.task, condition))
                                            for name, path in logs]
     if args.policy is not None:

@@ -16,19 +16,12 @@ from __future__ import annotations
 import argparse
 
 from lerobot_bavo.eval.run import labelled_episode_log, read_episode_records
-from lerobot_bavo.metrics import NUM_MILESTONES
+from lerobot_bavo.metrics import NUM_MILESTONES, milestone_depth_counts
 
 
 def stops_by_depth(records: list[dict]) -> list[int]:
     """Episodes per final milestone depth, index 0..NUM_MILESTONES (the last is success)."""
-    stops = [0] * (NUM_MILESTONES + 1)
-    for r in records:
-        depth = int(r["progress"])
-        if not 0 <= depth <= NUM_MILESTONES:
-            raise ValueError(f"milestone depth must be in [0, {NUM_MILESTONES}], got {depth} "
-                             f"(seed {r['seed']})")
-        stops[depth] += 1
-    return stops
+    return milestone_depth_counts([r["progress"] for r in records])
 
 
 def transition_rates(stops: list[int]) -> list[float | None]:
