@@ -72,11 +72,6 @@ class MilestoneTracker:
         return self.depth == NUM_MILESTONES
 
 
-def body_pose(data: mujoco.MjData, body_id: int) -> tuple[np.ndarray, np.ndarray]:
-    """Position (3,) and rotation matrix (3, 3) of a body in the base frame (copies)."""
-    return data.xpos[body_id].copy(), data.xmat[body_id].reshape(3, 3).copy()
-
-
 def set_free_body_pose(model: mujoco.MjModel, data: mujoco.MjData, joint_id: int, pos, yaw: float) -> None:
     """Place a free-joint body at `pos` (m) with heading `yaw` (rad about +z), at rest."""
     adr = model.jnt_qposadr[joint_id]
