@@ -13,16 +13,18 @@ record, else the evaluated cells). Without `--eval` the card says the checkpoint
 evaluate the shipped folder, then ship again with `--checkpoint DIR --eval results.json` (what
 `scripts/train_task.sh recipe` does).
 
-Inference settings (`--num-inference-steps`, `--n-action-steps`) are written into the shipped config.json and
-the card says they differ from training; `--notes FILE` adds how they were chosen. `--checkpoint DIR` re-ships
-a `pretrained_model` folder (e.g. the shipped one, in place) when the training run is not on this machine;
-`--eval` may be given once per results.json (e.g. Stage and Clean evaluated separately).
+Inference settings (`--num-inference-steps`, `--n-action-steps`, `--temporal-ensemble-coeff`) are written into
+the shipped config.json and the card says they differ from training; `--notes FILE` adds how they were chosen.
+`--checkpoint DIR` re-ships a `pretrained_model` folder (e.g. the shipped one, in place) when the training run
+is not on this machine; `--eval` may be given once per results.json (e.g. Stage and Clean evaluated
+separately).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import shutil
 from datetime import datetime
@@ -304,6 +306,11 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                   if config["num_inference_steps"] != pol["num_inference_steps"] else "")
     chunk_note = (f" (the training config had {pol['n_action_steps']}; set in the shipped config.json)"
                   if config["n_action_steps"] != pol["n_action_steps"] else "")
+    coeff = config.get("temporal_ensemble_coeff")
+    execution = (f"{config['n_action_steps']} executed per call{chunk_note}" if coeff is None else
+                 f"a new one every {config['n_action_steps']} steps{chunk_note}, each executed action the "
+                 f"temporal ensemble (ACT's, coefficient {coeff}; set in the shipped config.json) of the "
+                 "overlapping chunks' predictions")
     steps, batch = train.get("shipped_step") or train["steps"], train["batch_size"]
     schedule = (f" (a checkpoint of a {train['steps']}-step cosine schedule, i.e. before its end)"
                 if steps != train["steps"] else "")
@@ -431,7 +438,7 @@ size preset (see `lerobot_bavo/policies/maniflow/configuration_maniflow.py` and 
 that differs from the paper, and why). Inputs: `observation.point_cloud` ({cloud_text}, of which the policy
 reads the first {pol.get('points_per_step') or n_points}, an exact FPS subsample)
 and `observation.state` (21 joints), 2 observation steps; output: 16-step chunks of 21 absolute joint targets,
-{config['n_action_steps']} executed per call{chunk_note}, sampled with {config['num_inference_steps']} Euler
+{execution}, sampled with {config['num_inference_steps']} Euler
 steps{steps_note}, the gripper commands (action dims {list(binary)}) {snap_text}{teacher_text}
 
 ## Data
@@ -514,6 +521,14 @@ def main() -> None:
         "inference setting, 1 to horizon - n_obs_steps + 1; the card says so); default: as trained",
     )
     p.add_argument(
+        "--temporal-ensemble-coeff",
+        type=float,
+        default=None,
+        help="write ACT's temporal ensembling into the shipped config.json (an inference setting: each "
+        "executed action is the exp(-coeff * i)-weighted mean of the overlapping chunks' predictions, "
+        "a chunk every --n-action-steps steps; the card says so); default: as trained",
+    )
+    p.add_argument(
         "--all-weights",
         action="store_true",
         help="ship the whole model.safetensors (training copy and EMA) instead of the inference weights",
@@ -557,6 +572,13 @@ def main() -> None:
     limit = config["horizon"] - config["n_obs_steps"] + 1
     if not 1 <= config["n_action_steps"] <= limit:
         raise SystemExit(f"--n-action-steps must be in [1, horizon - n_obs_steps + 1] = [1, {limit}]")
+    if args.temporal_ensemble_coeff is not None:
+        if not math.isfinite(args.temporal_ensemble_coeff):
+            raise SystemExit("--temporal-ensemble-coeff must be a finite number")
+        if config["n_action_steps"] >= limit:
+            raise SystemExit(f"--temporal-ensemble-coeff blends overlapping chunks: --n-action-steps must be "
+                             f"< horizon - n_obs_steps + 1 = {limit}")
+        config["temporal_ensemble_coeff"] = args.temporal_ensemble_coeff
     (args.output / "config.json").write_text(json.dumps(config, indent=4) + "\n")
     if not args.all_weights:
         kept, dropped = keep_inference_weights(args.output / "model.safetensors", config)

@@ -100,3 +100,28 @@ def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
     unused = ship.mixed_data_text(data, "", {"sample_weights": False})
     assert "weights unused" in unused and "weigh 0.0" not in unused
     assert ship.dims_text([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
+
+
+def test_temporal_ensembling_is_written_into_the_shipped_config_and_card(tmp_path):
+    """`--temporal-ensemble-coeff` with `--n-action-steps` re-ships a checkpoint whose config turns ACT's
+    ensembling on and whose card says so; chunks that would not overlap are refused."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    base = [sys.executable, str(repo / "scripts/ship_checkpoint.py"), "--checkpoint",
+            str(repo / "checkpoints/afar_cube_handoff_sf"), "--step", "004000", "--point-frame", "base"]
+    out = tmp_path / "te"
+    ensemble = ["--n-action-steps", "4", "--temporal-ensemble-coeff", "0.01"]
+    subprocess.run([*base, *ensemble, "--output", str(out)], check=True, capture_output=True, cwd=repo)
+    config = json.loads((out / "config.json").read_text())
+    assert (config["n_action_steps"], config["temporal_ensemble_coeff"]) == (4, 0.01)
+    card = " ".join((out / "README.md").read_text().split())
+    assert "a new one every 4 steps" in card and "temporal ensemble (ACT's, coefficient 0.01" in card
+    no_overlap = ["--temporal-ensemble-coeff", "0.01", "--n-action-steps", "15"]
+    refused = subprocess.run([*base, *no_overlap, "--output", str(tmp_path / "no")], capture_output=True,
+                             text=True, cwd=repo)
+    assert refused.returncode != 0
+    assert "--n-action-steps must be < horizon - n_obs_steps + 1 = 15" in refused.stderr

@@ -103,6 +103,14 @@ class ManiFlowConfig(PreTrainedConfig):
             Must be <= horizon - n_obs_steps + 1. Default 8: replans every 8 control steps (0.32 s at 25 Hz),
             reactive enough for random-time occlusions while executing a coherent half of the chunk, and
             halves eval-time policy calls compared with 4.
+        temporal_ensemble_coeff: None (default) executes each chunk's `n_action_steps` actions as they are.
+            A number turns on ACT's temporal ensembling (`policies/ensemble.py`, inference only): a chunk is
+            still generated every `n_action_steps` steps, but every chunk's predictions from the current step
+            on are kept (horizon - n_obs_steps + 1 of them) and the action executed at each step is their
+            weighted mean, w_i = exp(-coeff * i) with i = 0 the oldest (the ACT paper's 0.01); gripper
+            dimensions are snapped after the mean. Why: overlapping chunks are blended instead of cut over.
+            Needs `n_action_steps` < horizon - n_obs_steps + 1 (chunks must overlap); cost: one policy call
+            per `n_action_steps` steps, as without it.
         normalization_mapping: FeatureType name -> NormalizationMode. STATE (state and point cloud) and ACTION
             use MIN_MAX (ManiFlow's `limits`); VISUAL is IDENTITY because images are not used.
         push_to_hub: Whether lerobot-train pushes the checkpoint to the Hub. False here (LeRobot's default is
@@ -252,6 +260,7 @@ class ManiFlowConfig(PreTrainedConfig):
     n_obs_steps: int = 2
     horizon: int = 16
     n_action_steps: int = 8
+    temporal_ensemble_coeff: float | None = None
 
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
@@ -348,6 +357,16 @@ class ManiFlowConfig(PreTrainedConfig):
                 "`n_action_steps` must be in [1, horizon - n_obs_steps + 1] = "
                 f"[1, {self.horizon - self.n_obs_steps + 1}]. Got {self.n_action_steps}."
             )
+        if self.temporal_ensemble_coeff is not None:
+            if not math.isfinite(self.temporal_ensemble_coeff):
+                raise ValueError("`temporal_ensemble_coeff` must be a finite number or None. "
+                                 f"Got {self.temporal_ensemble_coeff}.")
+            if self.n_action_steps >= self.horizon - self.n_obs_steps + 1:
+                raise ValueError(
+                    "`temporal_ensemble_coeff` blends overlapping chunks, so a chunk must be generated "
+                    f"before the last one runs out: `n_action_steps` must be < horizon - n_obs_steps + 1 = "
+                    f"{self.horizon - self.n_obs_steps + 1}. Got {self.n_action_steps}."
+                )
         if self.point_channels not in (3, 6):
             raise ValueError(f"`point_channels` must be 3 (xyz) or 6 (xyz + rgb). Got {self.point_channels}.")
         if self.num_inference_steps < 1:

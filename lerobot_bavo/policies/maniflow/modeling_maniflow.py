@@ -31,6 +31,7 @@ from lerobot_bavo.features import (
     unflatten_points,
 )
 from lerobot_bavo.policies.augment import occluder_dropout
+from lerobot_bavo.policies.ensemble import ChunkEnsemble
 from lerobot_bavo.policies.heap import keep_freed_heap
 
 from .configuration_maniflow import ManiFlowConfig
@@ -620,12 +621,15 @@ class ManiFlowPolicy(PreTrainedPolicy):
         return self.model.parameters()
 
     def reset(self):
-        """Clear the observation and action queues; call on env.reset()."""
+        """Clear the observation and action queues (and the stored chunks of temporal ensembling); call on
+        env.reset()."""
         self._queues = {
             self.config.observation_key: deque(maxlen=self.config.n_obs_steps),
             OBS_STATE: deque(maxlen=self.config.n_obs_steps),
             ACTION: deque(maxlen=self.config.n_action_steps),
         }
+        coeff = self.config.temporal_ensemble_coeff
+        self._ensemble = None if coeff is None else ChunkEnsemble(coeff, self.config.n_action_steps)
 
     def train(self, mode: bool = True):
         super().train(mode)
@@ -767,13 +771,21 @@ class ManiFlowPolicy(PreTrainedPolicy):
     ) -> Tensor:
         """One action (B, A) per call; a new chunk is generated every `n_action_steps` calls. Needs only the
         current `observation.point_cloud` (or object poses) and `observation.state` (teacher keys are never
-        read here)."""
+        read here). With `temporal_ensemble_coeff` set, the action is the ensembled mean of the stored chunks'
+        predictions for this step (`policies/ensemble.py`) and the action queue stays empty."""
         key = self.config.observation_key
         obs = {key: self._points(batch[key]), OBS_STATE: batch[OBS_STATE]}
         for name, unbatched_ndim in ((key, 2), (OBS_STATE, 1)):
             if obs[name].ndim == unbatched_ndim:
                 obs[name] = obs[name][None]
         self._queues = populate_queues(self._queues, obs)
+        if self._ensemble is not None:
+            if self._ensemble.needs_chunk():
+                stacked = {k: torch.stack(list(self._queues[k]), dim=1) for k in (key, OBS_STATE)}
+                chunk = self.generate_actions(stacked, noise=noise, generator=generator)
+                self._ensemble.add(chunk[:, self.config.n_obs_steps - 1:])
+            action = self._ensemble.pop()
+            return snap_binary_dims(action, self.config.binary_action_dims, self.config.binary_action_levels)
         if len(self._queues[ACTION]) == 0:
             actions = self.predict_action_chunk(obs, noise=noise, generator=generator)
             self._queues[ACTION].extend(actions.transpose(0, 1))
