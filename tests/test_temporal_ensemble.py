@@ -109,3 +109,15 @@ def test_policy_executes_the_ensemble_of_its_own_chunks(make):
         if step < 4:  # one chunk covers the first interval: the plain policy's action
             torch.testing.assert_close(got, plain.select_action(dict(obs), noise=noise), rtol=1e-5, atol=1e-6)
     assert len(policy_action_queue(ens)) == 0  # the ensemble, not the queue, holds what is to come
+
+
+def test_lerobot_cli_flags_turn_it_on():
+    """`lerobot-eval --policy.temporal_ensemble_coeff=0.01 --policy.n_action_steps=4` parses to the setting
+    (draccus, as LeRobot's CLIs parse it); without the flag it is off."""
+    import draccus
+    from test_policies import _Cli
+
+    on = draccus.parse(_Cli, args=["--policy.type=afar", "--policy.temporal_ensemble_coeff=0.01",
+                                   "--policy.n_action_steps=4"]).policy
+    assert (on.temporal_ensemble_coeff, on.n_action_steps) == (0.01, 4)
+    assert draccus.parse(_Cli, args=["--policy.type=maniflow"]).policy.temporal_ensemble_coeff is None
