@@ -32,6 +32,7 @@ from pathlib import Path
 
 from lerobot_bavo.datasets.metadata import MIX_WEIGHT_KEYS
 from lerobot_bavo.demo import SHIPPED_CHECKPOINT as DEMO_CHECKPOINT
+from lerobot_bavo.envs.tasks import TASKS
 
 FILES = ("config.json", "model.safetensors", "train_config.json")
 MAX_BYTES = 7_000_000  # the size a shipped checkpoint may take in the repository (issue 27: at most 7 MB)
@@ -259,13 +260,19 @@ def mixed_data_text(data: dict, noise_text: str, pol: dict | None = None) -> str
             "teacher; each source's collection command and seeds are in its `meta/bavo_collection.json`).")
 
 
-def card_task(data: dict | None, evals: list[dict]) -> str:
-    """The task the checkpoint was trained on: its data's bavo-collect record, else the one evaluated task."""
+def card_task(data: dict | None, evals: list[dict], task: str | None = None) -> str:
+    """The task the checkpoint was trained on: its data's bavo-collect record, else `--task`, else the one
+    evaluated task."""
     if data is not None:
+        if task is not None and task != data["task"]:
+            raise SystemExit(f"--task {task} contradicts the training data's record ({data['task']})")
         return data["task"]
+    if task is not None:
+        return task
     tasks = {key.split("/")[0] for results in evals for key in results["cells"]}
     if len(tasks) != 1:
-        raise SystemExit(f"cannot tell the training task (data not on this machine; evaluated tasks {tasks})")
+        raise SystemExit(f"cannot tell the training task (data not on this machine; evaluated tasks "
+                         f"{tasks}): pass --task")
     return tasks.pop()
 
 
@@ -296,10 +303,10 @@ def size_flags(pol: dict) -> list[str]:
 
 
 def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data: dict | None, config: dict,
-         notes: str = "", half: bool = False) -> str:
+         notes: str = "", half: bool = False, task: str | None = None) -> str:
     pol, ds = train["policy"], train["dataset"]
     method, what = METHODS.get(pol["type"], (pol["type"], "a LeRobot policy"))
-    task = card_task(data, evals)
+    task = card_task(data, evals, task)
     title = task.replace("_", " ").title()
     mixed = bool(data is not None and data.get("mixed_from"))  # a view joined by scripts/mix_views.py
     steps_note = (f" (trained with {pol['num_inference_steps']}; set in the shipped config.json)"
@@ -501,6 +508,13 @@ def main() -> None:
                    help="training wall time in minutes, for the card; default: read from <output_dir>.log "
                    "(lerobot-train's log) if it is on this machine")
     p.add_argument(
+        "--task",
+        choices=sorted(TASKS),
+        default=None,
+        help="the training task, for the card, when neither the training data's record nor an --eval is on "
+        "this machine (e.g. re-shipping a committed checkpoint with other inference settings)",
+    )
+    p.add_argument(
         "--point-frame",
         choices=POINT_FRAMES,
         default=None,
@@ -607,7 +621,7 @@ def main() -> None:
     if wall_min is None and train.get("output_dir") and log.is_file() and "shipped_step" in train:
         wall_min = training_wall_min(log.read_text(errors="replace"), train["shipped_step"])
     card_text = card(train, evals, wall_min, args.output.name, collection_summary(train), config, notes,
-                     half=weights_in_half_precision(args.output / "model.safetensors"))
+                     half=weights_in_half_precision(args.output / "model.safetensors"), task=args.task)
     (args.output / "README.md").write_text(card_text)
     print(f"shipped {src} -> {args.output} ({total / 2**20:.1f} MiB)")
 

@@ -104,7 +104,8 @@ def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
 
 def test_temporal_ensembling_is_written_into_the_shipped_config_and_card(tmp_path):
     """`--temporal-ensemble-coeff` with `--n-action-steps` re-ships a checkpoint whose config turns ACT's
-    ensembling on and whose card says so; chunks that would not overlap are refused."""
+    ensembling on and whose card says so; chunks that would not overlap are refused. `--task` names the task
+    for the card, as on a fresh clone (no training data, no evaluation)."""
     import json
     import subprocess
     import sys
@@ -112,7 +113,8 @@ def test_temporal_ensembling_is_written_into_the_shipped_config_and_card(tmp_pat
 
     repo = Path(__file__).resolve().parents[1]
     base = [sys.executable, str(repo / "scripts/ship_checkpoint.py"), "--checkpoint",
-            str(repo / "checkpoints/afar_cube_handoff_sf"), "--step", "004000", "--point-frame", "base"]
+            str(repo / "checkpoints/afar_cube_handoff_sf"), "--step", "004000", "--point-frame", "base",
+            "--task", "cube_handoff"]
     out = tmp_path / "te"
     ensemble = ["--n-action-steps", "4", "--temporal-ensemble-coeff", "0.01"]
     subprocess.run([*base, *ensemble, "--output", str(out)], check=True, capture_output=True, cwd=repo)
