@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import shutil
 from datetime import datetime
@@ -33,6 +32,7 @@ from pathlib import Path
 from lerobot_bavo.datasets.metadata import MIX_WEIGHT_KEYS
 from lerobot_bavo.demo import SHIPPED_CHECKPOINT as DEMO_CHECKPOINT
 from lerobot_bavo.envs.tasks import TASKS
+from lerobot_bavo.policies.maniflow.configuration_maniflow import check_chunk_execution
 
 FILES = ("config.json", "model.safetensors", "train_config.json")
 MAX_BYTES = 7_000_000  # the size a shipped checkpoint may take in the repository (issue 27: at most 7 MB)
@@ -583,16 +583,13 @@ def main() -> None:
             if value < 1:
                 raise SystemExit(f"--{key.replace('_', '-')} must be >= 1")
             config[key] = value
-    limit = config["horizon"] - config["n_obs_steps"] + 1
-    if not 1 <= config["n_action_steps"] <= limit:
-        raise SystemExit(f"--n-action-steps must be in [1, horizon - n_obs_steps + 1] = [1, {limit}]")
     if args.temporal_ensemble_coeff is not None:
-        if not math.isfinite(args.temporal_ensemble_coeff):
-            raise SystemExit("--temporal-ensemble-coeff must be a finite number")
-        if config["n_action_steps"] >= limit:
-            raise SystemExit(f"--temporal-ensemble-coeff blends overlapping chunks: --n-action-steps must be "
-                             f"< horizon - n_obs_steps + 1 = {limit}")
         config["temporal_ensemble_coeff"] = args.temporal_ensemble_coeff
+    try:
+        check_chunk_execution(config["horizon"], config["n_obs_steps"], config["n_action_steps"],
+                              config.get("temporal_ensemble_coeff"))
+    except ValueError as err:
+        raise SystemExit(f"--n-action-steps / --temporal-ensemble-coeff: {err}") from None
     (args.output / "config.json").write_text(json.dumps(config, indent=4) + "\n")
     if not args.all_weights:
         kept, dropped = keep_inference_weights(args.output / "model.safetensors", config)

@@ -126,4 +126,4 @@ def test_temporal_ensembling_is_written_into_the_shipped_config_and_card(tmp_pat
     refused = subprocess.run([*base, *no_overlap, "--output", str(tmp_path / "no")], capture_output=True,
                              text=True, cwd=repo)
     assert refused.returncode != 0
-    assert "--n-action-steps must be < horizon - n_obs_steps + 1 = 15" in refused.stderr
+    assert "`n_action_steps` must be < horizon - n_obs_steps + 1 = 15" in refused.stderr

@@ -50,6 +50,30 @@ MANIFLOW_PRESETS: dict[str, dict] = {
 }
 
 
+def check_chunk_execution(horizon: int, n_obs_steps: int, n_action_steps: int,
+                          temporal_ensemble_coeff: float | None = None) -> None:
+    """Raise ValueError unless chunks of `horizon` steps (the first `n_obs_steps - 1` of them in the past) can
+    be executed `n_action_steps` at a time, and ensembled when `temporal_ensemble_coeff` is set. The config's
+    own check, and that of scripts editing these settings in a saved config.json (`ship_checkpoint.py`)."""
+    future = horizon - n_obs_steps + 1  # predicted actions from the current step on
+    if not 1 <= n_action_steps <= future:
+        raise ValueError(
+            f"`n_action_steps` must be in [1, horizon - n_obs_steps + 1] = [1, {future}]. "
+            f"Got {n_action_steps}."
+        )
+    if temporal_ensemble_coeff is not None:
+        if not math.isfinite(temporal_ensemble_coeff):
+            raise ValueError(
+                f"`temporal_ensemble_coeff` must be a finite number or None. Got {temporal_ensemble_coeff}."
+            )
+        if n_action_steps >= future:
+            raise ValueError(
+                "`temporal_ensemble_coeff` blends overlapping chunks, so a chunk must be generated before "
+                f"the last one runs out: `n_action_steps` must be < horizon - n_obs_steps + 1 = {future}. "
+                f"Got {n_action_steps}."
+            )
+
+
 def default_binary_action_dims(names=None, action_dim: int | None = None) -> tuple[int, ...]:
     """The action dimensions snapped to open / closed by default: BAVO's gripper commands when the action is
     BAVO's (its entry names when known, else its size), none for any other robot's action."""
@@ -352,21 +376,8 @@ class ManiFlowConfig(PreTrainedConfig):
             )
         if self.n_obs_steps < 1:
             raise ValueError(f"`n_obs_steps` must be >= 1. Got {self.n_obs_steps}.")
-        if not 1 <= self.n_action_steps <= self.horizon - self.n_obs_steps + 1:
-            raise ValueError(
-                "`n_action_steps` must be in [1, horizon - n_obs_steps + 1] = "
-                f"[1, {self.horizon - self.n_obs_steps + 1}]. Got {self.n_action_steps}."
-            )
-        if self.temporal_ensemble_coeff is not None:
-            if not math.isfinite(self.temporal_ensemble_coeff):
-                raise ValueError("`temporal_ensemble_coeff` must be a finite number or None. "
-                                 f"Got {self.temporal_ensemble_coeff}.")
-            if self.n_action_steps >= self.horizon - self.n_obs_steps + 1:
-                raise ValueError(
-                    "`temporal_ensemble_coeff` blends overlapping chunks, so a chunk must be generated "
-                    f"before the last one runs out: `n_action_steps` must be < horizon - n_obs_steps + 1 = "
-                    f"{self.horizon - self.n_obs_steps + 1}. Got {self.n_action_steps}."
-                )
+        check_chunk_execution(self.horizon, self.n_obs_steps, self.n_action_steps,
+                              self.temporal_ensemble_coeff)
         if self.point_channels not in (3, 6):
             raise ValueError(f"`point_channels` must be 3 (xyz) or 6 (xyz + rgb). Got {self.point_channels}.")
         if self.num_inference_steps < 1:
