@@ -755,12 +755,16 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
         Uses the observation queues when `select_action` filled them, else the batch as given (B, To, ...).
         """
-        keys = (self.config.observation_key, OBS_STATE)
-        if any(len(self._queues[k]) > 0 for k in keys):
-            batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in keys}
+        if any(len(self._queues[k]) > 0 for k in (self.config.observation_key, OBS_STATE)):
+            batch = self._queued_observations()
         actions = self.generate_actions(batch, noise=noise, generator=generator)
         start = self.config.n_obs_steps - 1
         return actions[:, start : start + self.config.n_action_steps]
+
+    def _queued_observations(self) -> dict[str, Tensor]:
+        """The observation queues `select_action` fills, stacked (B, n_obs_steps, ...)."""
+        keys = (self.config.observation_key, OBS_STATE)
+        return {k: torch.stack(list(self._queues[k]), dim=1) for k in keys}
 
     @torch.no_grad()
     def select_action(
@@ -781,8 +785,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         self._queues = populate_queues(self._queues, obs)
         if self._ensemble is not None:
             if self._ensemble.needs_chunk():
-                stacked = {k: torch.stack(list(self._queues[k]), dim=1) for k in (key, OBS_STATE)}
-                chunk = self.generate_actions(stacked, noise=noise, generator=generator)
+                chunk = self.generate_actions(self._queued_observations(), noise=noise, generator=generator)
                 self._ensemble.add(chunk[:, self.config.n_obs_steps - 1:])
             action = self._ensemble.pop()
             return snap_binary_dims(action, self.config.binary_action_dims, self.config.binary_action_levels)
