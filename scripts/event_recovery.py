@@ -38,7 +38,7 @@ import statistics
 from collections import defaultdict
 from pathlib import Path
 
-from lerobot_bavo.eval.run import labelled_episode_log, read_episode_records
+from lerobot_bavo.eval.run import episode_log_path, labelled_episode_log, read_episode_records
 
 
 def per_event_index(episodes: list[dict]) -> dict[int, dict]:
@@ -103,7 +103,7 @@ def rollout_episodes(policy: str, task: str, condition: str, seeds: range) -> li
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("logs", nargs="*", type=Path, help="bavo-eval episodes.jsonl files")
+    ap.add_argument("logs", nargs="*", type=episode_log_path, help="bavo-eval episodes.jsonl files")
     ap.add_argument("--label", action="append", default=[], metavar="NAME=episodes.jsonl",
                     type=labelled_episode_log)
     ap.add_argument("--task", default=None, help="only this task's episodes")
@@ -117,8 +117,6 @@ def main(argv: list[str] | None = None) -> None:
                          "was regained (V >= 0.5) instead of CVG")
     args = ap.parse_args(argv)
     condition = args.regained or "random"
-    if missing := [str(p) for p in args.logs if not p.is_file()]:  # --label's type checked its own
-        ap.error(f"no episode log at {', '.join(missing)}")
     logs: list[tuple[str, Path]] = [(str(p), p) for p in args.logs] + args.label
     named: list[tuple[str, list[dict]]] = [(name, read_episodes(path, args.task, condition))
                                            for name, path in logs]

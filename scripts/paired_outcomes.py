@@ -12,9 +12,8 @@ are pooled: their discordant counts add up.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from lerobot_bavo.eval.run import read_episode_records
+from lerobot_bavo.eval.run import paired_episode_logs, read_episode_records
 from lerobot_bavo.metrics import mcnemar_exact_p
 
 
@@ -38,18 +37,12 @@ def paired_counts(a: list[dict], b: list[dict]) -> dict[str, tuple[int, int, int
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("pairs", nargs="+", metavar="A_LOG=B_LOG",
+    parser.add_argument("pairs", nargs="+", metavar="A_LOG=B_LOG", type=paired_episode_logs,
                         help="two episode logs (episodes.jsonl or .jsonl.gz) of runs on the same seeds")
     args = parser.parse_args(argv)
     pooled: dict[str, list[int]] = {}
-    for pair in args.pairs:
-        a_path, sep, b_path = pair.partition("=")
-        if not sep or not a_path or not b_path:
-            parser.error(f"want A_LOG=B_LOG, got {pair!r}")
-        for path in (a_path, b_path):
-            if not Path(path).is_file():
-                parser.error(f"no episode log at {path}")
-        counts = paired_counts(read_episode_records(Path(a_path)), read_episode_records(Path(b_path)))
+    for a_path, b_path in args.pairs:
+        counts = paired_counts(read_episode_records(a_path), read_episode_records(b_path))
         if not counts:
             parser.error(f"{a_path} and {b_path} share no (task, condition, seed) episode")
         for cond, c in counts.items():

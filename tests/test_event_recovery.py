@@ -60,7 +60,8 @@ def test_view_regained_by_hand(tmp_path, capsys):
 def test_missing_log_is_a_usage_error(tmp_path, capsys):
     """A log path that does not exist is named in a usage error, not a traceback from deep in the reader."""
     tool = load_script("scripts/event_recovery.py")
-    with pytest.raises(SystemExit) as exit_info:
-        tool.main(["--label", f"p={tmp_path / 'nope.jsonl'}"])
-    assert exit_info.value.code == 2
-    assert "no episode log at" in capsys.readouterr().err
+    for argv in (["--label", f"p={tmp_path / 'nope.jsonl'}"], [str(tmp_path / "gone.jsonl")]):
+        with pytest.raises(SystemExit) as exit_info:
+            tool.main(argv)
+        assert exit_info.value.code == 2
+        assert "no episode log at" in capsys.readouterr().err

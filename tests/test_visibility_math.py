@@ -227,3 +227,10 @@ def test_paired_outcomes_matches_episodes_by_seed(tmp_path, capsys):
     module.main([f"{tmp_path / 'a.jsonl'}={tmp_path / 'b.jsonl'}"])
     assert "stage: 3 paired episodes, A won 2, B 2; A only 1, B only 1; McNemar exact p = 1.000" in \
         capsys.readouterr().out
+    # a pair without "=" and a missing log are usage errors naming them, before any log is read
+    for pair, message in ((str(tmp_path / "a.jsonl"), "want A_LOG=B_LOG"),
+                          (f"{tmp_path / 'a.jsonl'}={tmp_path / 'gone.jsonl'}", "no episode log at")):
+        with pytest.raises(SystemExit) as exit_info:
+            module.main([pair])
+        assert exit_info.value.code == 2
+        assert message in capsys.readouterr().err

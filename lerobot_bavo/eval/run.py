@@ -118,18 +118,35 @@ def read_episode_records(log_path: Path) -> list[dict]:
     return _episode_records(data[: data.rfind(b"\n") + 1], log_path)
 
 
+def episode_log_path(text: str) -> Path:
+    """`path/to/episodes.jsonl[.gz]` -> Path, or a usage error naming it: the argparse `type` of every episode
+    log the analysis scripts read (scripts/event_recovery.py, scripts/milestone_stops.py,
+    scripts/paired_outcomes.py), so a mistyped path fails before any log is read."""
+    import argparse
+
+    if not Path(text).is_file():
+        raise argparse.ArgumentTypeError(f"no episode log at {text}")
+    return Path(text)
+
+
 def labelled_episode_log(text: str) -> tuple[str, Path]:
-    """`NAME=path/to/episodes.jsonl[.gz]` -> (NAME, path): the argparse `type` of the analysis scripts'
-    `--label` (scripts/event_recovery.py, scripts/milestone_stops.py), so a typo in the form or the path is
-    a usage error naming it, before any log is read."""
+    """`NAME=path/to/episodes.jsonl[.gz]` -> (NAME, path): `--label`'s argparse `type`."""
     import argparse
 
     name, sep, path = text.partition("=")
     if not sep or not name or not path:
         raise argparse.ArgumentTypeError(f"want NAME=episodes.jsonl, got {text!r}")
-    if not Path(path).is_file():
-        raise argparse.ArgumentTypeError(f"no episode log at {path}")
-    return name, Path(path)
+    return name, episode_log_path(path)
+
+
+def paired_episode_logs(text: str) -> tuple[Path, Path]:
+    """`A_LOG=B_LOG` -> (A, B): two runs' episode logs to pair on their shared seeds."""
+    import argparse
+
+    a_path, sep, b_path = text.partition("=")
+    if not sep or not a_path or not b_path:
+        raise argparse.ArgumentTypeError(f"want A_LOG=B_LOG, got {text!r}")
+    return episode_log_path(a_path), episode_log_path(b_path)
 
 
 def read_episode_log(log_path: Path) -> dict[tuple[str, str, int], dict]:
