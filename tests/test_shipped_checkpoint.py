@@ -62,11 +62,16 @@ def test_shipped_checkpoint_acts_in_bavo_eval_agent_under_stage_occlusion():
         env.close()
 
 
-@pytest.mark.parametrize("folder", [SHIPPED_CHECKPOINT.name, "maniflow_block_stacking"])
-def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path, folder):
+@pytest.mark.parametrize(("folder", "inference_flags"), [
+    (SHIPPED_CHECKPOINT.name, []),
+    ("maniflow_block_stacking", []),
+    (SHIPPED_CHECKPOINT.name, ["--policy.temporal_ensemble_coeff=0.01", "--policy.n_action_steps=4"]),
+])
+def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path, folder, inference_flags):
     """`lerobot-eval --policy.path=checkpoints/<method>_<task>[_sf]` on its own task with the cloud flags its
     card names (two of the shipped folders: both policy types, two tasks, the self-filtered demo policy and a
-    plain cloud; every folder loads through the same code path as in the test above)."""
+    plain cloud; every folder loads through the same code path as in the test above), and once with temporal
+    ensembling turned on from the command line (docs/training.md)."""
     from lerobot_bavo.eval.rollout import env_kwargs_for_policy
 
     checkpoint = SHIPPED_CHECKPOINT.parent / folder
@@ -91,6 +96,7 @@ def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path, folder):
             "--eval.batch_size=1",
             "--eval.use_async_envs=false",
             f"--output_dir={tmp_path / 'eval'}",
+            *inference_flags,
         ],
         capture_output=True,
         text=True,
@@ -101,6 +107,9 @@ def test_shipped_checkpoint_runs_in_lerobot_eval(tmp_path, folder):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
+    for flag in inference_flags:  # the run's printed config holds the setting it was given
+        name, value = flag.removeprefix("--policy.").split("=")
+        assert f"'{name}': {value}" in proc.stdout + proc.stderr
 
 
 def test_a_learned_policy_episode_depends_only_on_its_seed():
