@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import re
-import time
 from pathlib import Path
 
 import pytest
@@ -59,23 +58,26 @@ def _finished_run(out: Path) -> dict[str, bytes]:
     ],
 )
 def test_a_checkpoint_asking_for_absurd_sizes_is_refused_before_anything_is_built(
-    checkpoint, tmp_path, field, value, message
+    checkpoint, tmp_path, monkeypatch, field, value, message
 ):
     """Before: num_inference_steps 1e9 hung bavo-eval past 6 GB (the sampler schedule is precomputed), a
     negative width failed deep in torch. Now the config's own check refuses it, in bavo-eval's main process,
-    in milliseconds, naming config.json, the field and the bound; an earlier run in the output folder is
-    untouched."""
+    before any policy is built, naming config.json, the field and the bound; an earlier run in the output
+    folder is untouched."""
     from lerobot_bavo.checkpoints import CheckpointMismatchError
     from lerobot_bavo.eval.cli import evaluate
     from lerobot_bavo.eval.rollout import LeRobotPolicyAgent
+    from lerobot_bavo.policies.maniflow.modeling_maniflow import ManiFlowPolicy
 
+    def built(*args, **kwargs):
+        raise AssertionError(f"a policy was built from a config with {field}={value!r}")
+
+    monkeypatch.setattr(ManiFlowPolicy, "__init__", built)  # A-FAR's policy builds through it too
     bad = _edited(checkpoint, tmp_path / "bad", **{field: value})
     out = tmp_path / "eval"
     before = _finished_run(out)
-    t0 = time.perf_counter()
     with pytest.raises(SystemExit) as exc:
         evaluate(str(bad), ["cube_handoff"], ["clean"], 1, 1000, out)
-    assert time.perf_counter() - t0 < 30
     assert "config.json" in str(exc.value) and message in str(exc.value)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing finished lost, nothing started
     # the agent (bavo-demo, a worker) refuses it the same way
@@ -305,9 +307,10 @@ methods: {expert: expert}
 
 def test_a_yaml_alias_bomb_and_other_hostile_grid_files_are_refused_quickly(tmp_path):
     """Before: the ~500-byte bomb under `tasks:` took 18 s and 2.3 GB (its repr in the error message), a
-    non-UTF-8 file gave a UnicodeDecodeError traceback. Now: refused in milliseconds, naming the file;
-    messages never repr more than a few dozen characters of what the file holds; a finished grid is
-    untouched."""
+    non-UTF-8 file gave a UnicodeDecodeError traceback. Now: refused at the first anchor (line 1), before
+    anything is expanded, naming the file; messages never repr more than a few dozen characters of what
+    the file holds; a finished grid is untouched. (Checked by where the refusal happens, not by a clock:
+    the suite runs beside trainings on 2 cores.)"""
     from lerobot_bavo.eval.cli import main
     from lerobot_bavo.eval.grid import MAX_GRID_BYTES, GridError, load_grid
 
@@ -315,23 +318,21 @@ def test_a_yaml_alias_bomb_and_other_hostile_grid_files_are_refused_quickly(tmp_
     before = _finished_run(out)
     bomb = tmp_path / "bomb.yaml"
     bomb.write_text(ALIAS_BOMB)
-    t0 = time.perf_counter()
     with pytest.raises(
         SystemExit,
         match=rf"grid file {bomb} is not valid YAML: .*anchors and aliases \(&name, \*name\) "
         "are not allowed",
-    ):
+    ) as exit_info:
         main(["--grid", str(bomb), "--output-dir", str(out)])
-    assert time.perf_counter() - t0 < 5
+    assert "line 1, column 4" in str(exit_info.value) and len(str(exit_info.value)) < 400
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
     def refused(name: str, data: bytes, message: str) -> str:
         path = tmp_path / name
         path.write_bytes(data)
-        t0 = time.perf_counter()
         with pytest.raises(GridError, match=message) as exc:
             load_grid(path)
-        assert time.perf_counter() - t0 < 10 and str(path) in str(exc.value)
+        assert str(path) in str(exc.value)
         return str(exc.value)
 
     refused(
