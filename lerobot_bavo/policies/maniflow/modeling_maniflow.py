@@ -755,15 +755,18 @@ class ManiFlowPolicy(PreTrainedPolicy):
 
         Uses the observation queues when `select_action` filled them, else the batch as given (B, To, ...).
         """
-        if any(len(self._queues[k]) > 0 for k in (self.config.observation_key, OBS_STATE)):
-            batch = self._queued_observations()
+        if (queued := self._queued_observations()) is not None:
+            batch = queued
         actions = self.generate_actions(batch, noise=noise, generator=generator)
         start = self.config.n_obs_steps - 1
         return actions[:, start : start + self.config.n_action_steps]
 
-    def _queued_observations(self) -> dict[str, Tensor]:
-        """The observation queues `select_action` fills, stacked (B, n_obs_steps, ...)."""
+    def _queued_observations(self) -> dict[str, Tensor] | None:
+        """The observation queues `select_action` fills, stacked (B, n_obs_steps, ...); None while they are
+        empty (a batch given straight to `predict_action_chunk`)."""
         keys = (self.config.observation_key, OBS_STATE)
+        if not any(len(self._queues[k]) > 0 for k in keys):
+            return None
         return {k: torch.stack(list(self._queues[k]), dim=1) for k in keys}
 
     @torch.no_grad()
