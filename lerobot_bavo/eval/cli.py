@@ -72,8 +72,9 @@ from lerobot_bavo.eval.run import (  # noqa: F401  (the library's names, as `ler
 from lerobot_bavo.runtime.pool import add_executor_arguments, executor_problem
 
 
-def main(argv: list[str] | None = None) -> None:
-    from lerobot_bavo.envs.tasks import TASKS
+def build_parser() -> argparse.ArgumentParser:
+    """`bavo-eval`'s arguments. Options the grid file also sets default to None, so that `check_arguments`
+    can tell a flag given beside `--grid` from one left alone."""
     from lerobot_bavo.features import POINT_FRAMES
 
     parser = argparse.ArgumentParser(prog="bavo-eval", description=__doc__,
@@ -128,7 +129,14 @@ def main(argv: list[str] | None = None) -> None:
         help="frame of the env's point clouds when nothing records the checkpoint's (default: the "
         "frame its training dataset records, else base); a conflicting value is refused",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse flags that conflict with `--grid` or are out of range, then fill the defaults in place (one
+    place for them: `--help` names the same values)."""
+    from lerobot_bavo.envs.tasks import TASKS
+
     if args.grid is not None:
         given = [
             f"--{name.replace('_', '-')}"
@@ -147,6 +155,12 @@ def main(argv: list[str] | None = None) -> None:
     for name, low in (("episodes", 1), ("seed", 0), ("workers", 1), ("videos", 0)):
         if getattr(args, name) < low:
             parser.error(f"--{name} must be >= {low}, got {getattr(args, name)}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    check_arguments(parser, args)
     from lerobot_bavo import register_lerobot_types
     from lerobot_bavo.checkpoints import CheckpointMismatchError, UntrustedCheckpointError
     from lerobot_bavo.eval.rollout import EXPERT_POLICIES
