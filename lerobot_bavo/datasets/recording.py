@@ -175,25 +175,12 @@ class EpisodeRecorder:
             rows["point_pixels"].append(obs["point_pixels"])
             rows["camera_pose"].append(np.asarray(info["camera_pose"], dtype=np.float64))
             rows["environment_state"].append(task.environment_state(env.model, env.data))
-            rows["progress"].append(int(info["progress"]))
-            occ = info.get("occlusion")
-            if occ is None:
-                rows["occlusion_event"].append(-1)
-                rows["event_start"].append(0.0)
-                rows["occlusion_target"].append(-1)
-                rows["visibility"].append(-1.0)
-                rows["occluder_pose"].append(np.zeros(7))
-            else:
-                if occ["event_started"]:
-                    target_stage = _target_stage(task, occ["target"], int(info["progress"]))
-                rows["occlusion_event"].append(int(occ["event"]["index"]))
-                rows["event_start"].append(float(bool(occ["event_started"])))
-                rows["occlusion_target"].append(target_stage)
-                vis = occ["visibility"]
-                rows["visibility"].append(-1.0 if vis is None else float(vis))
-                rows["occluder_pose"].append(
-                    np.concatenate([occ["event"]["occluder_pos"], occ["event"]["occluder_quat"]])
-                )
+            progress = int(info["progress"])
+            rows["progress"].append(progress)
+            annotation = occlusion_annotation(task, info.get("occlusion"), progress, target_stage)
+            target_stage = annotation["occlusion_target"]
+            for key, value in annotation.items():
+                rows[key].append(value)
             # a_t
             action = np.asarray(expert.act(obs, info), dtype=np.float32)
             rows["action"].append(action)
@@ -247,6 +234,30 @@ class EpisodeRecorder:
         arrays (not yet diagnosed), so the readback stays until that is understood.
         """
         return self._seg.render_segmentation(self.env.data, self._camera_id, with_depth=True)
+
+
+def occlusion_annotation(task, occlusion: dict | None, progress: int, target_stage: int) -> dict:
+    """One step's occlusion annotations from the env's `info["occlusion"]` (None in Clean).
+
+    `target_stage` is the stage index of the event in force at the previous step: it changes only when an
+    event starts (the target is fixed for the event's whole span), and is -1 before the first event.
+    Values: the event index (-1 none), event start (1.0 at the step it starts), the target's stage index,
+    the target's visibility (-1.0 unknown or Clean) and the occluder's pose [x, y, z (m, base frame),
+    quaternion w, x, y, z] (zeros in Clean)."""
+    if occlusion is None:
+        return {"occlusion_event": -1, "event_start": 0.0, "occlusion_target": -1, "visibility": -1.0,
+                "occluder_pose": np.zeros(7)}
+    event = occlusion["event"]
+    if occlusion["event_started"]:
+        target_stage = _target_stage(task, occlusion["target"], progress)
+    visibility = occlusion["visibility"]
+    return {
+        "occlusion_event": int(event["index"]),
+        "event_start": float(bool(occlusion["event_started"])),
+        "occlusion_target": target_stage,
+        "visibility": -1.0 if visibility is None else float(visibility),
+        "occluder_pose": np.concatenate([event["occluder_pos"], event["occluder_quat"]]),
+    }
 
 
 def _target_stage(task, target: str, progress: int) -> int:
