@@ -211,6 +211,50 @@ def _decode_segment(path: Path, t0: float, t1: float, fps: float, n: int) -> np.
     return out
 
 
+class _EpisodeColumns:
+    """One episode's rows of a data file as arrays in frame order (LeRobot's files need not store them so).
+
+    Missing columns read as None: datasets collected before a column existed lack it."""
+
+    def __init__(self, table) -> None:
+        self._table = table
+        self.length = table.num_rows
+        self._order = np.argsort(self._raw("frame_index"))
+
+    def _raw(self, key: str, width: int | None = None) -> np.ndarray | None:
+        if key not in self._table.column_names:
+            return None
+        c = self._table.column(key).combine_chunks()
+        if width is None:
+            return c.to_numpy(zero_copy_only=False)
+        if hasattr(c, "flatten"):  # list / fixed-size-list column; (1,) features are stored as plain values
+            c = c.flatten()
+        return np.asarray(c.to_numpy(zero_copy_only=False)).reshape(self.length, width)
+
+    def get(self, key: str, width: int | None = None) -> np.ndarray | None:
+        """Column `key` in frame order: (T,) when `width` is None, else (T, width)."""
+        x = self._raw(key, width)
+        return None if x is None else x[self._order]
+
+    def scalar(self, key: str, dtype) -> np.ndarray | None:
+        """A (1,)-shaped feature as a (T,) array of `dtype`."""
+        x = self.get(key, 1)
+        return None if x is None else x[:, 0].astype(dtype)
+
+
+def _episode_rgb(root: Path, info: dict, row: dict, length: int) -> np.ndarray | None:
+    """The episode's span of its active-camera video file, (T, H, W, 3) uint8; None for image features."""
+    if info["features"][OBS_IMAGE]["dtype"] != "video":
+        return None
+    key = OBS_IMAGE
+    path = root / info["video_path"].format(
+        video_key=key, chunk_index=row[f"videos/{key}/chunk_index"],
+        file_index=row[f"videos/{key}/file_index"],
+    )
+    return _decode_segment(path, float(row[f"videos/{key}/from_timestamp"]),
+                           float(row[f"videos/{key}/to_timestamp"]), float(info["fps"]), length)
+
+
 def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) -> EpisodeData:
     """One episode of a local BAVO dataset (LeRobot v3.0 layout) as `EpisodeData`.
 
@@ -242,63 +286,39 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
     T = table.num_rows
     if row["length"] != T:
         raise ValueError(f"{data_file}: episode {episode} has {T} rows, meta/episodes says {row['length']}")
+    cols = _EpisodeColumns(table)
 
-    def col(key: str, width: int | None = None) -> np.ndarray | None:
-        if key not in table.column_names:
-            return None
-        c = table.column(key).combine_chunks()
-        if width is None:
-            return c.to_numpy(zero_copy_only=False)
-        if hasattr(c, "flatten"):  # list / fixed-size-list column; (1,) features are stored as plain values
-            c = c.flatten()
-        return np.asarray(c.to_numpy(zero_copy_only=False)).reshape(T, width)
+    def width(key: str) -> int | None:
+        return features[key]["shape"][0] if key in features else None
 
-    order = np.argsort(col("frame_index"))
-    frame_index = col("frame_index")[order].astype(np.int64)
-
-    def take(x):
-        return None if x is None else x[order]
-
-    cloud = take(col(OBS_POINT_CLOUD, n * POINT_CHANNELS)).reshape(T, n, POINT_CHANNELS).astype(np.float32)
-    pose = take(col(OBS_CAMERA_POSE, 16)).reshape(T, 4, 4).astype(np.float64)
+    cloud = cols.get(OBS_POINT_CLOUD, n * POINT_CHANNELS).reshape(T, n, POINT_CHANNELS).astype(np.float32)
+    pose = cols.get(OBS_CAMERA_POSE, 16).reshape(T, 4, 4).astype(np.float64)
     if settings.get("point_frame", "base") == "camera":
         cloud = cloud.copy()
         for t in range(T):
             cloud[t, :, :3] = to_base_frame(cloud[t, :, :3], pose[t])
 
-    def scalar(key, dtype):
-        x = take(col(key, 1))
-        return None if x is None else x[:, 0].astype(dtype)
-
-    progress = scalar(ANN_PROGRESS, np.int64)
-    target_stage = scalar(ANN_TARGET, np.int64)
+    progress = cols.scalar(ANN_PROGRESS, np.int64)
+    target_stage = cols.scalar(ANN_TARGET, np.int64)
     targets = settings.get("stage_targets")
     occlusion_target = None
     if target_stage is not None:
         occlusion_target = [None if s < 0 else (targets[s] if targets and s < len(targets) else f"stage {s}")
                             for s in target_stage]
-    z0 = take(col(TEACHER_Z0, None if TEACHER_Z0 not in features else features[TEACHER_Z0]["shape"][0]))
-    zf = take(col(TEACHER_ZF, None if TEACHER_ZF not in features else features[TEACHER_ZF]["shape"][0]))
+    z0, zf = cols.get(TEACHER_Z0, width(TEACHER_Z0)), cols.get(TEACHER_ZF, width(TEACHER_ZF))
 
     H, W = settings.get("image_height"), settings.get("image_width")
     rgb = None
     if OBS_IMAGE in features:
         H, W = features[OBS_IMAGE]["shape"][:2]
-        if video and features[OBS_IMAGE]["dtype"] == "video":
-            key = OBS_IMAGE
-            vpath = root / info["video_path"].format(
-                video_key=key,
-                chunk_index=row[f"videos/{key}/chunk_index"],
-                file_index=row[f"videos/{key}/file_index"],
-            )
-            rgb = _decode_segment(vpath, float(row[f"videos/{key}/from_timestamp"]),
-                                  float(row[f"videos/{key}/to_timestamp"]), float(info["fps"]), T)
+        if video:
+            rgb = _episode_rgb(root, info, row, T)
     if H is None:
         H, W = ObservationSettings.image_height, ObservationSettings.image_width
     fovy = float(settings.get("fovy", DEFAULT_FOVY))
     return EpisodeData(
-        frame_index=frame_index,
-        timestamp=take(col("timestamp")).astype(np.float64),
+        frame_index=cols.get("frame_index").astype(np.int64),
+        timestamp=cols.get("timestamp").astype(np.float64),
         point_cloud=cloud,
         camera_pose=pose,
         K=intrinsics(fovy, int(H), int(W)),
@@ -306,15 +326,15 @@ def load_dataset_episode(root: str | Path, episode: int, *, video: bool = True) 
         rgb=rgb,
         progress=progress,
         milestones=None if progress is None else milestones_from_progress(progress),
-        visibility=scalar(ANN_VISIBILITY, np.float32),
-        occlusion_event=scalar(ANN_EVENT, np.int64),
-        event_start=None if (x := scalar(ANN_EVENT_START, np.float32)) is None else x > 0.5,
-        occlusion_active=None if (x := scalar(ANN_ACTIVE, np.float32)) is None else x > 0.5,
-        occluder_pose=take(col(ANN_OCCLUDER_POSE, 7)),
+        visibility=cols.scalar(ANN_VISIBILITY, np.float32),
+        occlusion_event=cols.scalar(ANN_EVENT, np.int64),
+        event_start=None if (x := cols.scalar(ANN_EVENT_START, np.float32)) is None else x > 0.5,
+        occlusion_active=None if (x := cols.scalar(ANN_ACTIVE, np.float32)) is None else x > 0.5,
+        occluder_pose=cols.get(ANN_OCCLUDER_POSE, 7),
         occlusion_target=occlusion_target,
         teacher_z0=None if z0 is None else z0.reshape(T, n, -1).astype(np.float32),
         teacher_zf=None if zf is None else zf.reshape(T, n, -1).astype(np.float32),
-        action=take(col(ACTION, features[ACTION]["shape"][0])) if ACTION in features else None,
+        action=cols.get(ACTION, width(ACTION)) if ACTION in features else None,
         name=f"{root.name} episode {episode}",
         meta={
             "source": "dataset",
