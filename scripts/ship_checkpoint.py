@@ -473,8 +473,8 @@ weights, so fine-tuning with `--policy.path` still works{weights_text}
 - `bavo-eval --policy PATH --tasks {task}`{demo}, or
   `lerobot-eval --policy.path=PATH --env.type=bavo --env.task={task} --env.condition=stage{env_flags}`
   (`bavo-eval` reads the cloud settings from the checkpoint; `lerobot-eval` needs them as flags).
-- Push to the Hub: `huggingface-cli login`, then
-  `huggingface-cli upload <user>/{pol['type']}_bavo_{task} checkpoints/{name} .`;
+- Push to the Hub: `hf auth login`, then
+  `hf upload <user>/{pol['type']}_bavo_{task} checkpoints/{name} .`;
   load with `--policy.path=<user>/{pol['type']}_bavo_{task}`.
 - Safety: a checkpoint's processor files name Python classes that LeRobot imports; our loaders accept
   only LeRobot's and this package's processor steps (see docs/checkpoints.md).

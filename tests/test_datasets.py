@@ -226,7 +226,7 @@ def test_corrupted_or_mismatched_datasets_give_clear_errors(dataset_root, tmp_pa
 
     # A finished collection whose upload fails (here: offline, no login) says so and loses nothing.
     offline = _copy(dataset_root, tmp_path, "offline")
-    with pytest.raises(CollectionError, match="upload .* failed.*huggingface-cli login"):
+    with pytest.raises(CollectionError, match="upload .* failed.*hf auth login"):
         collect(_config(offline, episodes=2, push_to_hub=True))
     assert load_bavo_dataset(REPO, root=offline).num_episodes == 2
 

@@ -4,7 +4,7 @@
 create_tag, ...) and `DatasetCard.push_to_hub`; loading by repo id lists the repo's refs (the
 `v3.0` tag) and calls `snapshot_download`. `FakeHub` implements exactly those calls on a local
 folder: uploads are copied in (honouring allow / ignore patterns), a tag freezes a copy of the
-branch, downloads copy a tagged revision out. A real push needs `huggingface-cli login`.
+branch, downloads copy a tagged revision out. A real push needs `hf auth login`.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ def test_shipped_checkpoint_is_complete_small_and_documented():
         k.startswith("observation.teacher") for k in cfg["input_features"]
     )
     card = (SHIPPED_CHECKPOINT / "README.md").read_text()
-    assert "bavo-eval" in card and "huggingface-cli upload" in card and "SR (%)" in card
+    assert "bavo-eval" in card and "hf upload" in card and "SR (%)" in card
 
 
 def test_loading_the_config_leaves_no_temporary_file(tmp_path, monkeypatch):

@@ -37,7 +37,7 @@ How it works:
 - At the end: exact per-channel point-cloud statistics (`hub.retile_point_cloud_stats`, read back from every
   data file; with local workers, which are idle by then, the channels are split between them:
   `Collector._point_cloud_stats`), the dataset card (README.md), and optionally `push_to_hub` (needs
-  `huggingface-cli login`).
+  `hf auth login`).
 
 Where each job lives: this module has the CLI and the run (`Collector`, `SeedScheduler`); `collect_config.py`
 the run's settings (`CollectConfig`); `session.py` the dataset-session API every writer of a dataset uses
@@ -369,7 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "conditions (docs/results/random_time.md); evaluation never holds events. "
                         "Default: off")
     p.add_argument(
-        "--push-to-hub", action="store_true", help="upload when done (needs `huggingface-cli login`)"
+        "--push-to-hub", action="store_true", help="upload when done (needs `hf auth login`)"
     )
     p.add_argument("--private", action="store_true", help="create the Hub repository private")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

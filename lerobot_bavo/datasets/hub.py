@@ -2,7 +2,7 @@
 
 Everything goes through LeRobot's own API: `LeRobotDataset(repo_id, root=...)` to load (offline
 with a local `root`), `LeRobotDataset.push_to_hub` to upload (it creates the `v3.0` tag that
-loading by repo id needs). A real push needs a Hugging Face token: run `huggingface-cli login`
+loading by repo id needs). A real push needs a Hugging Face token: run `hf auth login`
 (or set `HF_TOKEN`) first.
 """
 
@@ -141,7 +141,7 @@ def push_dataset(root: str | Path, repo_id: str, private: bool | None = None, pu
     """Upload a finished local BAVO dataset with LeRobot's `push_to_hub` (creates the v3.0 tag).
 
     The dataset card pushed is LeRobot's template filled with our description (the same text as
-    the local README.md). Needs `huggingface-cli login` (or `HF_TOKEN`) for a real push.
+    the local README.md). Needs `hf auth login` (or `HF_TOKEN`) for a real push.
     """
     from lerobot_bavo.datasets.card import card_kwargs_for
 

@@ -127,7 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=POINT_FRAMES,
         default=None,
         help="frame of the env's point clouds when nothing records the checkpoint's (default: the "
-        "frame its training dataset records, else base); a conflicting value is refused",
+        "frame its own bavo_inputs.json records, else its training dataset's, else base); a conflicting "
+        "value is refused",
     )
     return parser
 

@@ -321,7 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--third-person-height", type=int, default=240, help="height of the third-person view (pixels)"
     )
     p.add_argument("--replay", type=Path, default=None, metavar="INPUT_LOG",
-                   help="re-drive a recorded input log without a browser (saved into --root when given)")
+                   help="re-drive a recorded input log without a browser (saved into a dataset when "
+                   "--repo-id is given, at --root if given too; --root alone is refused)")
     return p
 
 

@@ -11,7 +11,7 @@ Entity paths (the world is the robot base frame B: metres, +z up):
 | `world/camera/image/rgb` | Image (JPEG) | every frame, where the source has RGB |
 | `world/camera/image/depth` | DepthImage (m) | every frame, where the source has depth |
 | `world/camera_path` | LineStrips3D: camera positions of frames 0..k | every frame |
-| `world/occluder` | Boxes3D: the panel (14 x 14 x 0.6 cm) | while an occlusion event is active; cleared
+| `world/occluder` | Boxes3D: the panel (15 x 15 x 0.6 cm) | while an occlusion event is active; cleared
 otherwise |
 | `world/teacher/queries` | Arrows3D: teacher query points at t -> their answer at t + 15 | optional
 (`--teacher`) |
