@@ -134,8 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Refuse flags that conflict with `--grid` or are out of range, then fill the defaults in place (one
-    place for them: `--help` names the same values)."""
+    """Refuse flags that conflict with `--grid` or are out of range, then fill in, in place, the defaults
+    that `--help` names (here rather than in `add_argument`, which would hide whether a flag was given)."""
     from lerobot_bavo.envs.tasks import TASKS
 
     if args.grid is not None:
