@@ -307,8 +307,7 @@ class DatasetSession:
                 raise CollectionError(
                     f"the dataset is complete at {self.root} but the upload to {self.cfg.repo_id!r} failed "
                     f"({type(e).__name__}: {e}). Log in with `hf auth login` (or set HF_TOKEN) and "
-                    "re-run the "
-                    "same command: nothing is recollected."
+                    "re-run the same command: nothing is recollected."
                 ) from e
             summary["pushed"] = self.cfg.repo_id
         return summary
