@@ -1,5 +1,6 @@
-"""The environment every collection / evaluation worker gets: one thread, headless GL, and the GPU driver's
-wait policy (sleep, not spin), each only where the user has not chosen one."""
+"""The environment every collection / evaluation worker gets: one thread, headless GL, the GPU driver's
+wait policy (sleep, not spin) and one rasteriser thread for Mesa's software renderer, each only where the
+user has not chosen one."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ from lerobot_bavo.runtime.ray_pool import worker_env_vars
 
 @pytest.fixture
 def clean_env(monkeypatch):
-    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MUJOCO_GL", process.GL_WAIT_POLICY[0]):
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MUJOCO_GL", process.GL_WAIT_POLICY[0],
+                 process.SOFTWARE_RENDER_THREADS[0]):
         monkeypatch.delenv(name, raising=False)
     torch = sys.modules.get("torch")  # limit_threads sets a loaded torch to one thread: give it back
     threads = torch.get_num_threads() if torch is not None else None
@@ -36,3 +38,12 @@ def test_ray_workers_get_the_same_wait_policy(clean_env):
     assert worker_env_vars()["__GL_YIELD"] == "USLEEP"
     clean_env.setenv("__GL_YIELD", "NOTHING")
     assert worker_env_vars()["__GL_YIELD"] == "NOTHING"
+
+
+def test_software_rendering_keeps_one_rasteriser_thread_per_worker_unless_told_otherwise(clean_env):
+    process.limit_threads()
+    assert os.environ["LP_NUM_THREADS"] == "1"
+    assert worker_env_vars()["LP_NUM_THREADS"] == "1"
+    clean_env.setenv("LP_NUM_THREADS", "4")
+    process.limit_threads()
+    assert os.environ["LP_NUM_THREADS"] == "4" and worker_env_vars()["LP_NUM_THREADS"] == "4"

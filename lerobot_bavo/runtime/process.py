@@ -52,6 +52,7 @@ def exit_with_parent(parent: int | None = None, poll_s: float = POLL_S) -> None:
 
 
 GL_WAIT_POLICY = ("__GL_YIELD", "USLEEP")  # NVIDIA's driver: sleep, not spin, while waiting for the GPU
+SOFTWARE_RENDER_THREADS = ("LP_NUM_THREADS", "1")  # Mesa's llvmpipe: rasterise on the worker's own thread
 
 
 def limit_threads() -> None:
@@ -59,7 +60,10 @@ def limit_threads() -> None:
 
     On NVIDIA's EGL a process that waits for a frame spins on its core by default; with 16 workers sharing
     one GPU that spinning cost a third more CPU per expert episode (docs/results/costs.md). GL_WAIT_POLICY
-    makes them sleep instead, unless the variable is already set (other drivers ignore it).
+    makes them sleep instead, unless the variable is already set (other drivers ignore it). Under Mesa's
+    software renderer (llvmpipe, the CPU machines' EGL) SOFTWARE_RENDER_THREADS keeps each worker's
+    rasteriser on its own thread rather than one per core in every worker, which is how 16 workers scaled
+    6-7x over 2 on 16 cores (docs/results/costs.md); likewise only where the user has not set it.
 
     PyTorch is not imported for this: an expert episode never needs it, and a fresh Ray worker would pay
     seconds for the import. If torch is already loaded (a forked local-pool worker inherits it) its
@@ -69,6 +73,7 @@ def limit_threads() -> None:
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault(*GL_WAIT_POLICY)
+    os.environ.setdefault(*SOFTWARE_RENDER_THREADS)
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(1)

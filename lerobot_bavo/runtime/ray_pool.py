@@ -34,7 +34,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from lerobot_bavo.runtime.process import GL_WAIT_POLICY
+from lerobot_bavo.runtime.process import GL_WAIT_POLICY, SOFTWARE_RENDER_THREADS
 
 MAX_RETRIES = 3
 # Ray's config: the nice value of its worker processes (default 15)
@@ -60,14 +60,16 @@ def import_ray():
 def worker_env_vars() -> dict[str, str]:
     """Environment of every Ray worker this pool starts: one BLAS / OpenMP thread (2-core machines: the
     variables must be set before numpy loads, hence not in the task), headless GL, and this package's source
-    folder ahead of the driver's PYTHONPATH. (A Ray worker registers LeRobot's types only when a job loads a
-    checkpoint: `import lerobot_bavo` is light.)"""
+    folder ahead of the driver's PYTHONPATH; the GL wait and software-rendering thread settings as
+    `process.limit_threads` gives local workers. (A Ray worker registers LeRobot's types only when a job
+    loads a checkpoint: `import lerobot_bavo` is light.)"""
     source = str(Path(__file__).resolve().parents[2])
     path = [source] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and p != source]
     return {"OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1"),
             "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
             "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
             GL_WAIT_POLICY[0]: os.environ.get(*GL_WAIT_POLICY),
+            SOFTWARE_RENDER_THREADS[0]: os.environ.get(*SOFTWARE_RENDER_THREADS),
             "PYTHONPATH": os.pathsep.join(path)}
 
 
