@@ -128,7 +128,9 @@ def add_executor_arguments(parser, workers_default: int, workers_help: str, exec
         "--workers",
         type=int,
         default=workers_default,
-        help=f"{workers_help}; with --executor ray and no --ray-address, the CPUs of the private local Ray",
+        help=f"{workers_help}; with --executor ray and no --ray-address, the CPUs of the private local Ray. "
+        "Many workers sharing one GPU's EGL renderer stop scaling at ~4x; software rendering per worker "
+        "(docs/collect.md, 'Many cores') keeps scaling",
     )
     parser.add_argument("--executor", choices=EXECUTORS, default="local",
                         help=f"{executor_help} (needs the 'ray' extra: pip install 'lerobot_env_bavo[ray]')")
