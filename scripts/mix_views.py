@@ -30,6 +30,7 @@ camera arm only).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import shutil
@@ -148,6 +149,23 @@ def add_sample_weights(joined, counts: list[int], weights: list[float | None], o
     drop_stale_episode_columns(output)
 
 
+@contextlib.contextmanager
+def arrow_cache_in(folder: Path):
+    """Keep the Arrow tables Hugging Face `datasets` caches while this script loads views in `folder`.
+
+    The sources are loaded from temporary clean copies, so what `datasets` would cache for them under
+    ~/.cache/huggingface/datasets (~10 GB for four 100-episode views, 2026-11-30) is keyed by folders that are
+    gone when the script ends and could never be reused. The user's setting is restored on exit."""
+    import datasets.config
+
+    before = datasets.config.HF_DATASETS_CACHE
+    datasets.config.HF_DATASETS_CACHE = folder
+    try:
+        yield folder
+    finally:
+        datasets.config.HF_DATASETS_CACHE = before
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--source", action="append", type=parse_source, required=True,
@@ -174,7 +192,8 @@ def main(argv: list[str] | None = None) -> None:
     counts = [count for _, count, _ in args.source]
     weights = [weight for _, _, weight in args.source]
     records = [read_record(root) for root in roots]
-    with tempfile.TemporaryDirectory(dir=args.output.parent) as tmp:
+    with (tempfile.TemporaryDirectory(dir=args.output.parent) as tmp,
+          arrow_cache_in(Path(tmp) / "hf_datasets")):
         heads = []
         for i, (root, count, _) in enumerate(args.source):
             info = json.loads((root / "meta" / "info.json").read_text())

@@ -621,7 +621,7 @@ def test_ctrl_c_with_a_writer_session_open_rolls_it_back(tmp_path, monkeypatch):
 
 
 
-def test_mix_views_joins_the_first_episodes_of_each_view(dataset_root, tmp_path):
+def test_mix_views_joins_the_first_episodes_of_each_view(dataset_root, tmp_path, monkeypatch):
     """scripts/mix_views.py (issue 27's condition-mix variant): Stage episode 0 + both Random-time episodes
     -> one view of 3 episodes whose frames are the sources' own, with a collection record naming the mix."""
     from _helpers import load_script
@@ -640,8 +640,13 @@ def test_mix_views_joins_the_first_episodes_of_each_view(dataset_root, tmp_path)
     (tmp_path / "stage" / "meta").mkdir(parents=True)
     shutil.copy(dataset_root / SIDECAR, tmp_path / "stage" / SIDECAR)  # the view's source record
 
+    import datasets.config
+
+    user_cache = tmp_path / "user_hf_cache"  # the Arrow cache of the temporary copies must not land here
+    monkeypatch.setattr(datasets.config, "HF_DATASETS_CACHE", user_cache)
     out = tmp_path / "mixed_points"
     mix.main(["--output", str(out), "--source", f"{stage_view}:1", "--source", f"{random_view}:2"])
+    assert not user_cache.exists() and user_cache == datasets.config.HF_DATASETS_CACHE
     joined = LeRobotDataset("local/mixed_points", root=out)
     stage = LeRobotDataset("x/stage", root=stage_view)
     rand = LeRobotDataset("x/random", root=random_view)
