@@ -51,7 +51,8 @@ part render_contention 150 python benchmarks/render_contention.py --procs 2,16
 # .device/mesa by `bash benchmarks/mesa_egl.sh prepare`, ~48 MiB: a call of its own after the installs)
 part render_contention_mesa 150 bash -c "source benchmarks/mesa_egl.sh use && \
     python benchmarks/render_contention.py --procs 2,16"
-part scale_workers_mesa 320 bash -c "source benchmarks/mesa_egl.sh use && python benchmarks/scale_workers.py \
+# (2026-11-30: 45 + 271 s collecting, 22 + 152 s evaluating with 16 and 2 workers: ~8.5 min with start-up)
+part scale_workers_mesa 540 bash -c "source benchmarks/mesa_egl.sh use && python benchmarks/scale_workers.py \
     --workers 16,2 --episodes ${SCALE_EPISODES:-48} --job both --json $OUT/scale_workers_mesa.json"
 part tp_paper_b512_amp_compile 300 "${TP[@]}" --preset paper --batch 512 --use-amp \
     --new-policy-arg compile=true
