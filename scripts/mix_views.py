@@ -154,7 +154,7 @@ def arrow_cache_in(folder: Path):
     """Keep the Arrow tables Hugging Face `datasets` caches while this script loads views in `folder`.
 
     The sources are loaded from temporary clean copies, so what `datasets` would cache for them under
-    ~/.cache/huggingface/datasets (~10 GB for four 100-episode views, 2026-11-30) is keyed by folders that are
+    ~/.cache/huggingface/datasets (gigabytes per mix: docs/training.md, "Disk") is keyed by folders that are
     gone when the script ends and could never be reused. The user's setting is restored on exit."""
     import datasets.config
 

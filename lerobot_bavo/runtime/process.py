@@ -62,8 +62,8 @@ def limit_threads() -> None:
     one GPU that spinning cost a third more CPU per expert episode (docs/results/costs.md). GL_WAIT_POLICY
     makes them sleep instead, unless the variable is already set (other drivers ignore it). Under Mesa's
     software renderer (llvmpipe, the CPU machines' EGL) SOFTWARE_RENDER_THREADS keeps each worker's
-    rasteriser on its own thread rather than one per core in every worker, which is how 16 workers scaled
-    6-7x over 2 on 16 cores (docs/results/costs.md); likewise only where the user has not set it.
+    rasteriser on its own thread rather than one per core in every worker, the set-up the 16-core scaling
+    was measured in (docs/results/costs.md); likewise only where the user has not set it.
 
     PyTorch is not imported for this: an expert episode never needs it, and a fresh Ray worker would pay
     seconds for the import. If torch is already loaded (a forked local-pool worker inherits it) its
