@@ -15,8 +15,7 @@ from lerobot_bavo.runtime.ray_pool import worker_env_vars
 
 @pytest.fixture
 def clean_env(monkeypatch):
-    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MUJOCO_GL", process.GL_WAIT_POLICY[0],
-                 process.SOFTWARE_RENDER_THREADS[0]):
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MUJOCO_GL", "__GL_YIELD", "LP_NUM_THREADS"):
         monkeypatch.delenv(name, raising=False)
     torch = sys.modules.get("torch")  # limit_threads sets a loaded torch to one thread: give it back
     threads = torch.get_num_threads() if torch is not None else None

@@ -53,6 +53,8 @@ def exit_with_parent(parent: int | None = None, poll_s: float = POLL_S) -> None:
 
 GL_WAIT_POLICY = ("__GL_YIELD", "USLEEP")  # NVIDIA's driver: sleep, not spin, while waiting for the GPU
 SOFTWARE_RENDER_THREADS = ("LP_NUM_THREADS", "1")  # Mesa's llvmpipe: rasterise on the worker's own thread
+# The renderer settings every worker (local or Ray) gets where the user has not set them
+RENDER_ENV_DEFAULTS = (GL_WAIT_POLICY, SOFTWARE_RENDER_THREADS)
 
 
 def limit_threads() -> None:
@@ -72,8 +74,8 @@ def limit_threads() -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ.setdefault("MUJOCO_GL", "egl")
-    os.environ.setdefault(*GL_WAIT_POLICY)
-    os.environ.setdefault(*SOFTWARE_RENDER_THREADS)
+    for name, value in RENDER_ENV_DEFAULTS:
+        os.environ.setdefault(name, value)
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(1)

@@ -34,7 +34,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from lerobot_bavo.runtime.process import GL_WAIT_POLICY, SOFTWARE_RENDER_THREADS
+from lerobot_bavo.runtime.process import RENDER_ENV_DEFAULTS
 
 MAX_RETRIES = 3
 # Ray's config: the nice value of its worker processes (default 15)
@@ -68,8 +68,7 @@ def worker_env_vars() -> dict[str, str]:
     return {"OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1"),
             "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
             "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-            GL_WAIT_POLICY[0]: os.environ.get(*GL_WAIT_POLICY),
-            SOFTWARE_RENDER_THREADS[0]: os.environ.get(*SOFTWARE_RENDER_THREADS),
+            **{name: os.environ.get(name, value) for name, value in RENDER_ENV_DEFAULTS},
             "PYTHONPATH": os.pathsep.join(path)}
 
 
