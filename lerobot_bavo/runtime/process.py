@@ -53,8 +53,10 @@ def exit_with_parent(parent: int | None = None, poll_s: float = POLL_S) -> None:
 
 GL_WAIT_POLICY = ("__GL_YIELD", "USLEEP")  # NVIDIA's driver: sleep, not spin, while waiting for the GPU
 SOFTWARE_RENDER_THREADS = ("LP_NUM_THREADS", "1")  # Mesa's llvmpipe: rasterise on the worker's own thread
-# The renderer settings every worker (local or Ray) gets where the user has not set them
-RENDER_ENV_DEFAULTS = (GL_WAIT_POLICY, SOFTWARE_RENDER_THREADS)
+# What every worker (local or Ray) gets where the user has not set it: one BLAS thread (2-core machines),
+# headless GL and the renderer settings above. OMP_NUM_THREADS is not here: local workers always get 1.
+WORKER_ENV_DEFAULTS = (("OPENBLAS_NUM_THREADS", "1"), ("MUJOCO_GL", "egl"), GL_WAIT_POLICY,
+                       SOFTWARE_RENDER_THREADS)
 
 
 def limit_threads() -> None:
@@ -71,10 +73,8 @@ def limit_threads() -> None:
     seconds for the import. If torch is already loaded (a forked local-pool worker inherits it) its
     thread count is set now; otherwise OMP_NUM_THREADS=1 is set, which torch reads when a job imports it
     later (e.g. to load a checkpoint)."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ["OMP_NUM_THREADS"] = "1"
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    for name, value in RENDER_ENV_DEFAULTS:
+    for name, value in WORKER_ENV_DEFAULTS:
         os.environ.setdefault(name, value)
     torch = sys.modules.get("torch")
     if torch is not None:

@@ -34,7 +34,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from lerobot_bavo.runtime.process import RENDER_ENV_DEFAULTS
+from lerobot_bavo.runtime.process import WORKER_ENV_DEFAULTS
 
 MAX_RETRIES = 3
 # Ray's config: the nice value of its worker processes (default 15)
@@ -65,10 +65,8 @@ def worker_env_vars() -> dict[str, str]:
     loads a checkpoint: `import lerobot_bavo` is light.)"""
     source = str(Path(__file__).resolve().parents[2])
     path = [source] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and p != source]
-    return {"OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1"),
-            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
-            "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-            **{name: os.environ.get(name, value) for name, value in RENDER_ENV_DEFAULTS},
+    return {"OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
+            **{name: os.environ.get(name, value) for name, value in WORKER_ENV_DEFAULTS},
             "PYTHONPATH": os.pathsep.join(path)}
 
 
