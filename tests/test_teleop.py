@@ -356,6 +356,19 @@ def hold(page, key: str, seconds: float) -> None:
     page.keyboard.up(key)
 
 
+def hold_until_moved(page, key: str, expr: str, axis: int, metres: float, timeout: float = 20.0) -> None:
+    """Hold `key` until coordinate `axis` of `expr` (a position, m) has grown by `metres`, or `timeout` s
+    passed: on a loaded machine the 25 Hz loop slips behind the wall clock, so a fixed hold moves less."""
+    start = page.evaluate(expr)[axis]
+    page.keyboard.down(key)
+    try:
+        deadline = time.time() + timeout
+        while time.time() < deadline and page.evaluate(expr)[axis] - start <= metres:
+            time.sleep(0.1)
+    finally:
+        page.keyboard.up(key)
+
+
 def settled(page, expr: str, tol: float = 0.002, timeout: float = 20.0) -> list[float]:
     """The value of `expr` (a position, m) once two reads 0.3 s apart differ by less than `tol` in every
     coordinate: on a loaded machine the 25 Hz loop slips behind the wall clock, so an arm can still be
@@ -392,8 +405,8 @@ def test_browser_key_presses_drive_the_arm_and_record_a_dataset(tmp_path):
                 page.keyboard.press("2")  # the right arm
                 page.wait_for_function("window.bavo.lastHeader && window.bavo.lastHeader.arm === 'right'")
                 x0 = page.evaluate("window.bavo.lastHeader.ee.right")
-                hold(page, "d", 0.5)  # +x
-                hold(page, "r", 0.4)  # +z
+                hold_until_moved(page, "d", "window.bavo.lastHeader.ee.right", axis=0, metres=0.03)  # +x
+                hold_until_moved(page, "r", "window.bavo.lastHeader.ee.right", axis=2, metres=0.02)  # +z
                 x1 = settled(page, "window.bavo.lastHeader.ee.right")
                 assert x1[0] - x0[0] > 0.03 and x1[2] - x0[2] > 0.02 and abs(x1[1] - x0[1]) < 0.01, (x0, x1)
                 state("ended")  # the 60-step limit
@@ -530,7 +543,7 @@ def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
                 print(f"WebXR stand-in: WebGL {webgl}, {drawn} headset frames drawn")
                 page.click("#b-xr")  # exit VR: the keyboard drives again
                 page.keyboard.press("1")
-                hold(page, "d", 0.4)
+                hold_until_moved(page, "d", "window.bavo.lastHeader.ee.left", axis=0, metres=0.02)
                 left = settled(page, "window.bavo.lastHeader.ee.left")
                 assert left[0] - h["ee"]["left"][0] > 0.02
                 # gamepad: left stick pushed up (axis 1 = -1) moves the selected arm away from the operator
