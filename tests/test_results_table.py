@@ -42,6 +42,26 @@ def test_a_method_with_fewer_tasks_says_so(table):
     assert "50.0 [35-65] (20/40)" in text  # Wilson 95 % for 20/40: 0.5 -+ 0.148 = 35.2-64.8 %
 
 
+def test_a_one_seed_task_keeps_the_several_seed_macro_of_the_others(table):
+    """Two tasks with seeds s0 and s1, a third with s0 only: the five-condition macro over all three tasks
+    can use s0 alone, so a second row gives the two tasks over both seeds."""
+    def cells_for(task, values):
+        return {f"{task}/{c}": {label: cell(sr, 40) for label, sr in values.items()}
+                for c in table.CONDITIONS}
+
+    methods = {"m": {**cells_for("cube_handoff", {"s0": 40.0, "s1": 60.0}),
+                     **cells_for("slide_retrieval", {"s0": 80.0, "s1": 100.0}),
+                     **cells_for("block_stacking", {"s0": 10.0})}}
+    text = "\n".join(table.macro_table(methods))
+    # all three tasks, seed s0 only: (40 + 10 + 80) / 3 = 43.3
+    assert "| m | 3 of 5 | 1 | 43.3 | 50.0 |" in text
+    # the two tasks with both seeds: s0 (40 + 80) / 2 = 60, s1 (60 + 100) / 2 = 80 -> 70.0 +- 14.1
+    assert "| m, the tasks with every seed | 2 of 5 | 2 | 70.0 ± 14.1 | 50.0 ± 0.0 |" in text
+    # a method with the same seeds on every task gets one row
+    one = {"n": cells_for("cube_handoff", {"s0": 40.0}) | cells_for("block_stacking", {"s0": 10.0})}
+    assert "every seed" not in "\n".join(table.macro_table(one))
+
+
 def test_paper_macro_matches_its_per_task_tables(table):
     for method, (sr, tps) in table.PAPER_MACRO.items():
         for i in range(3):
