@@ -356,15 +356,20 @@ def hold(page, key: str, seconds: float) -> None:
     page.keyboard.up(key)
 
 
-def hold_until_moved(page, key: str, expr: str, axis: int, metres: float, timeout: float = 20.0) -> None:
-    """Hold `key` until coordinate `axis` of `expr` (a position, m) has grown by `metres`, or `timeout` s
-    passed: on a loaded machine the 25 Hz loop slips behind the wall clock, so a fixed hold moves less."""
+def wait_until_moved(page, expr: str, axis: int, metres: float, start: float, timeout: float = 20.0) -> None:
+    """Poll until coordinate `axis` of `expr` (a position, m) exceeds `start` by `metres`, or `timeout` s
+    pass: on a loaded machine the 25 Hz loop slips behind the wall clock, so a fixed hold moves less."""
+    deadline = time.time() + timeout
+    while time.time() < deadline and page.evaluate(expr)[axis] - start <= metres:
+        time.sleep(0.1)
+
+
+def hold_until_moved(page, key: str, expr: str, axis: int, metres: float) -> None:
+    """Hold `key` until `expr` has moved `metres` along `axis` (see `wait_until_moved`)."""
     start = page.evaluate(expr)[axis]
     page.keyboard.down(key)
     try:
-        deadline = time.time() + timeout
-        while time.time() < deadline and page.evaluate(expr)[axis] - start <= metres:
-            time.sleep(0.1)
+        wait_until_moved(page, expr, axis, metres, start)
     finally:
         page.keyboard.up(key)
 
@@ -547,17 +552,12 @@ def test_page_webxr_and_gamepad_paths_with_stand_in_devices(tmp_path):
                 left = settled(page, "window.bavo.lastHeader.ee.left")
                 assert left[0] - h["ee"]["left"][0] > 0.02
                 # gamepad: left stick pushed up (axis 1 = -1) moves the selected arm away from the operator
-                # (+y) (held until the arm has moved 3 cm or 20 s passed: on a loaded machine the 25 Hz loop
-                # slips behind the wall clock, so a fixed hold time moves the arm by less)
+                # (+y), held until the arm has moved 3 cm
                 page.evaluate(
                     "window.__pad = {axes: [0, -1, 0, 0], buttons: Array.from({length: 17}, () => ({pressed: "
                     "false}))}"
                 )
-                deadline = time.time() + 20
-                while time.time() < deadline:
-                    time.sleep(0.2)
-                    if page.evaluate("window.bavo.lastHeader.ee.left")[1] - left[1] > 0.03:
-                        break
+                wait_until_moved(page, "window.bavo.lastHeader.ee.left", axis=1, metres=0.03, start=left[1])
                 page.evaluate("window.__pad = null")
                 left2 = settled(page, "window.bavo.lastHeader.ee.left")
                 assert left2[1] - left[1] > 0.03 and abs(left2[0] - left[0]) < 0.01, (left, left2)
