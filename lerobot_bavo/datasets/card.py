@@ -139,6 +139,13 @@ def card_description(sidecar: dict, repo_id: str) -> str:
             if st.get("events_outside_contacts")
             else []
         ),
+        *(
+            [f"- {st['decoy_panels']} decoy panel(s) in the scene (`--decoy-panels`): copies of the "
+             "occluder, re-drawn at every occlusion event where they leave the current target visible. A "
+             "data variant; the benchmark has none."]
+            if st.get("decoy_panels")
+            else []
+        ),
         f"- Observation: {st['image_height']} x {st['image_width']} RGB, {st['n_points']} points per cloud, "
         f"vertical field of view {st['fovy']} deg (intrinsics f = H / (2 tan(fovy / 2)), principal point at "
         "the image centre).",

@@ -269,7 +269,7 @@ class Collector(DatasetSession):
                 "staging": str(self.staging),
                 "video": self._video if seed >= 0 else None,
                 "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None,
-                "events_outside_contacts": cfg.events_outside_contacts}
+                "events_outside_contacts": cfg.events_outside_contacts, "decoy_panels": cfg.decoy_panels}
 
     @functools.cached_property
     def _video(self) -> dict | None:
@@ -368,6 +368,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "demonstration has an interrupted grasp or release. A data variant for occluded "
                         "conditions (docs/results/random_time.md); evaluation never holds events. "
                         "Default: off")
+    p.add_argument("--decoy-panels", type=int, default=0, metavar="N",
+                   help="add N decoy panels: copies of the occluder, re-drawn at every occlusion event "
+                        "where they leave the current target visible, so that a panel in the cloud stops "
+                        "telling where the target is (the occluder shortcut). A data variant for occluded "
+                        "conditions (docs/results/decoy_panels.md); the benchmark never has decoys. "
+                        "Default: 0")
     p.add_argument(
         "--push-to-hub", action="store_true", help="upload when done (needs `hf auth login`)"
     )
@@ -410,6 +416,7 @@ def main(argv: list[str] | None = None) -> int:
                 std=args.execution_noise, clean_contacts=args.execution_noise_clean_contacts
             ),
             events_outside_contacts=args.events_outside_contacts,
+            decoy_panels=args.decoy_panels,
             push_to_hub=args.push_to_hub,
             private=True if args.private else None,
             progress=not args.no_progress,

@@ -41,6 +41,8 @@ class CollectConfig:
             expert's clean actions (`experts/perturbation.py`). Off by default.
         events_outside_contacts: occlusion events wait while the expert is in one of its `contact_phases`
             (`BavoEnv.hold_occlusion_events`); only for an occluded condition. Off by default.
+        decoy_panels: decoy panels in the scene (`BavoEnv(decoy_panels=...)`): copies of the occluder that
+            never hide the current target; only for an occluded condition. 0 (default): the benchmark's scene.
         use_videos: store the active image as video.
         video_codec: that video's codec (`datasets/video_codec.py`): "h264" or "libsvtav1" (LeRobot's default
         AV1).
@@ -66,6 +68,7 @@ class CollectConfig:
     keep_failures: bool = False
     execution_noise: ExecutionNoise = field(default_factory=ExecutionNoise)
     events_outside_contacts: bool = False
+    decoy_panels: int = 0
     use_videos: bool = True
     video_codec: str | None = None
     push_to_hub: bool = False
@@ -93,6 +96,14 @@ class CollectConfig:
             if not get_condition(self.condition).occluded:
                 raise ValueError(f"--events-outside-contacts needs an occluded condition; "
                                  f"{self.condition!r} has no occlusion events")
+        if self.decoy_panels < 0:
+            raise ValueError(f"--decoy-panels must be >= 0, got {self.decoy_panels}")
+        if self.decoy_panels:
+            from lerobot_bavo.envs.conditions import get_condition
+
+            if not get_condition(self.condition).occluded:
+                raise ValueError(f"--decoy-panels needs an occluded condition; {self.condition!r} has no "
+                                 "occlusion events to place them at")
         if "/" not in self.repo_id:
             raise ValueError(f"--repo-id must look like '<user>/<name>', got {self.repo_id!r}")
 
@@ -124,6 +135,7 @@ class CollectConfig:
             # Only when on, so that the records of collections made before the option existed still match.
             **({"execution_noise": self.execution_noise.to_dict()} if self.execution_noise.enabled else {}),
             **({"events_outside_contacts": True} if self.events_outside_contacts else {}),
+            **({"decoy_panels": self.decoy_panels} if self.decoy_panels else {}),
             "use_videos": self.use_videos,
             # Only when not the codec of datasets made before the choice existed (their records name none).
             **video_codec_record_entry(video_codec, self.use_videos),

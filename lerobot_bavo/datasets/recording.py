@@ -77,10 +77,12 @@ class EpisodeRecorder:
         task, condition: the benchmark task and visibility condition.
         settings: observation settings (`lerobot_bavo.features.ObservationSettings`).
         episode_length: control-step limit (None: the task's own); truncated episodes fail.
+        decoy_panels: decoy panels in the scene (`BavoEnv(decoy_panels=...)`; 0: the benchmark's scene).
     """
 
     def __init__(
-        self, task: str, condition: str, settings: ObservationSettings, episode_length: int | None = None
+        self, task: str, condition: str, settings: ObservationSettings, episode_length: int | None = None,
+        decoy_panels: int = 0,
     ):
         from lerobot_bavo.envs.bavo_env import BavoEnv
         from lerobot_bavo.sim.rendering import SceneRenderer
@@ -97,6 +99,7 @@ class EpisodeRecorder:
             self_filter=settings.self_filter,
             episode_length=episode_length,
             render_mode=None,
+            decoy_panels=decoy_panels,
         )
         model = self.env.model
         self._camera_id = model.camera(C.ACTIVE_CAMERA).id

@@ -79,9 +79,10 @@ def _recorder(job: dict):
     from lerobot_bavo.datasets.recording import EpisodeRecorder
 
     settings = ObservationSettings(**job["settings"])
-    key = (job["task"], job["condition"], settings, job["episode_length"])
+    decoys = int(job.get("decoy_panels") or 0)
+    key = (job["task"], job["condition"], settings, job["episode_length"], decoys)
     return _RECORDERS.get(key, lambda: EpisodeRecorder(job["task"], job["condition"], settings,
-                                                        job["episode_length"]))
+                                                        job["episode_length"], decoy_panels=decoys))
 
 
 def warm_job(job: dict) -> None:

@@ -59,7 +59,7 @@ from lerobot_bavo.metrics import NUM_MILESTONES, CVGAccumulator
 from lerobot_bavo.sim import constants as C
 from lerobot_bavo.sim.kinematics import make_arm_kinematics
 from lerobot_bavo.sim.rendering import SceneRenderer
-from lerobot_bavo.sim.scene import add_occluder, build_base_spec
+from lerobot_bavo.sim.scene import add_decoy_panels, add_occluder, build_base_spec, decoy_body_name
 
 # Point-cloud crop box in the base frame (metres): the table's extent, from just above the table
 # top (so the bare table surface is not sampled) to 0.6 m above it.
@@ -98,6 +98,14 @@ class BavoEnv(gym.Env):
             depth render of the robot model alone at the current joint state, compared with the measured
             depth (`pointcloud.robot_pixel_mask`). Uses only what a real robot knows (its model, joints and
             camera calibration); one more depth-only render per observation.
+        decoy_panels: how many decoy panels to add (default 0: the benchmark's scene). A data-collection
+            lever against the occluder shortcut (docs/results/decoy_panels.md), never a benchmark setting:
+            panels that look exactly like the occluder, re-drawn at every occlusion event where they leave the
+            current target visible (`OccluderPlacer.place_decoy`), so that a panel in the cloud no longer
+            tells where the target is. Occluded conditions only. V, CVG and the experts ignore them (they
+            share the occluder's geom group, which the privileged renders drop). Their draws come from a
+            generator seeded from `np_random` after the occlusion schedule, so a seed gives the same layout,
+            schedule and occluder placements with and without decoys.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": C.CONTROL_HZ}
@@ -118,6 +126,7 @@ class BavoEnv(gym.Env):
         visibility_scale: float = 0.5,
         environment_state: bool = False,
         self_filter: bool = ObservationSettings.self_filter,
+        decoy_panels: int = 0,
     ):
         self.condition_rule = get_condition(condition)  # unknown names raise, listing the registered ones
         if render_mode not in (None, "rgb_array"):
@@ -142,6 +151,14 @@ class BavoEnv(gym.Env):
         self.occluded = self.condition_rule.occluded
         if self.occluded:
             add_occluder(spec, OCCLUDER_HALF_EXTENTS)
+        if (isinstance(decoy_panels, bool) or not isinstance(decoy_panels, (int, np.integer))
+                or decoy_panels < 0):
+            raise ValueError(f"decoy_panels must be an integer >= 0, got {decoy_panels!r}")
+        if decoy_panels and not self.occluded:
+            raise ValueError(f"decoy_panels needs an occluded condition; {self.condition!r} has no occluder "
+                             "events to place them at")
+        self.decoy_panels = int(decoy_panels)
+        add_decoy_panels(spec, OCCLUDER_HALF_EXTENTS, self.decoy_panels)
         self.compute_cvg = bool((self.condition_rule.reports_cvg if compute_cvg is None else compute_cvg)
                                 and self.occluded)
         self.model = spec.compile()
@@ -190,6 +207,9 @@ class BavoEnv(gym.Env):
         self._flags: dict[str, bool] = {}
         self._visibility: TargetVisibility | None = None
         self._placer: OccluderPlacer | None = None
+        self._decoy_placers: list[OccluderPlacer] = []
+        self._decoy_rng: np.random.Generator | None = None
+        self._decoys: list[tuple[np.ndarray, np.ndarray] | None] = []
         self._schedule: OcclusionSchedule | None = None
         self._events: list[OcclusionEvent] = []
         self._events_held = False
@@ -228,6 +248,8 @@ class BavoEnv(gym.Env):
             self._schedule = OcclusionSchedule.sample(
                 self.condition_rule, self.task.stage_transitions, self.np_random
             )
+            if self.decoy_panels:
+                self._decoy_rng = np.random.default_rng(int(self.np_random.integers(2**63)))
             self._update_occlusion()
         return self._observation(), self._info()
 
@@ -321,6 +343,25 @@ class BavoEnv(gym.Env):
         ))
         self._cvg.end_open_events(step)
         self._cvg.start_event(step, target)
+        if self.decoy_panels:
+            self._place_decoys(target, centre)
+
+    def _place_decoys(self, target: str, occluder_centre: np.ndarray) -> None:
+        """Re-draw every decoy panel for the event just started (`decoy_panels`)."""
+        if not self._decoy_placers:
+            self._decoy_placers = [
+                OccluderPlacer(self.model, self.data, self.visibility_probe, self._placer.robot_geoms,
+                               self._placer.other_geoms, body=decoy_body_name(i))
+                for i in range(self.decoy_panels)
+            ]
+        self._decoys = []
+        avoid = [np.asarray(occluder_centre)]
+        for placer in self._decoy_placers:
+            placed = placer.place_decoy(self._decoy_rng, self.task.target_geoms[target], self._camera_id,
+                                        avoid, self.obs_settings.fovy)
+            self._decoys.append(placed)
+            if placed is not None:
+                avoid.append(placed[0])
 
     def _update_occlusion(self) -> None:
         """Start an event if one is due, then record this step's visibility samples."""
@@ -483,6 +524,9 @@ class BavoEnv(gym.Env):
                 "visibility": self._step_visibility,
                 "triggers": list(self._schedule.triggers),
             }
+            if self.decoy_panels:
+                info["occlusion"]["decoy_positions"] = [None if d is None else d[0].copy()
+                                                        for d in self._decoys]
         if self._episode_summary is not None:
             info["cvg"] = self._episode_summary
         return info

@@ -32,6 +32,8 @@ __all__ = [
     "candidate_placements",
     "OCCLUDER_POINT_MARGIN",
     "points_on_occluder",
+    "OccluderPlacer",
+    "DECOY_MIN_TARGET_VISIBILITY",
 ]
 
 # --- schedules ---
@@ -228,24 +230,26 @@ class OccluderPlacer:
     `mujoco.mj_geomDistance`). The first clear candidate with V_e <= `VISIBILITY_THRESHOLD`
     (from the current camera) is accepted. If none qualifies, the clear candidate with the
     lowest V_e is used, or, if none is clear, the first candidate; both are flagged `fallback`.
-    Deterministic: no randomness is involved.
+    `place` is deterministic: no randomness is involved (`place_decoy` draws from the generator it is given).
 
     Args:
-        model, data: the env's simulation (only the occluder's mocap pose and derived
+        model, data: the env's simulation (only the panel's mocap pose and derived
             kinematics are written).
         visibility: the env's `TargetVisibility` probe.
         robot_geoms, other_geoms: geom ids to keep clear of.
+        body: the panel's mocap body (its geom is `<body>_geom`): the occluder, or a decoy panel
+            (`place_decoy`).
     """
 
-    def __init__(self, model, data, visibility, robot_geoms, other_geoms):
+    def __init__(self, model, data, visibility, robot_geoms, other_geoms, body: str = "occluder"):
         import mujoco
 
         self._mj = mujoco
         self.model, self.data = model, data
         self.visibility = visibility
-        self.body = model.body("occluder").id
+        self.body = model.body(body).id
         self.mocap = model.body_mocapid[self.body]
-        self.geom = model.geom("occluder_geom").id
+        self.geom = model.geom(f"{body}_geom").id
         self.half = (OCCLUDER_HALF_EXTENTS[1], OCCLUDER_HALF_EXTENTS[2])
         self.robot_geoms = np.asarray(robot_geoms)
         self.other_geoms = np.asarray(other_geoms)
@@ -293,3 +297,67 @@ class OccluderPlacer:
             )
         self.set_pose(best[0], best[1])
         return best[0], best[1], best[2], True
+
+    def place_decoy(self, rng: np.random.Generator, target_geoms, camera_id: int, avoid_centres,
+                    fovy_deg: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Place this panel as a decoy: a panel like the occluder, in view, that leaves the current target
+        visible. Returns its (centre, rotation), or None (parked) when no draw qualifies.
+
+        Why: the Stage occluder always lies on the line of sight to the current target, so a policy can read
+        the target's position off the panel (docs/results/occluder_shortcut.md). A decoy is drawn where the
+        target is not, so a panel in the cloud stops telling where the target is.
+
+        Each of `DECOY_TRIES` draws aims at a point uniform in the workspace box (`DECOY_AIM_LOW`,
+        `DECOY_AIM_HIGH`, base frame, metres) inside the camera's view cone (half-angle fovy / 2), and puts
+        the panel on the line of sight to it, facing the camera, at one of `DECOY_DISTANCES` (metres from the
+        camera; only those below `MAX_FRACTION_OF_TARGET_DISTANCE` of the aim's distance). A draw is
+        accepted if the panel keeps the occluder's clearances, its centre is at least `DECOY_MIN_SEPARATION`
+        from each of `avoid_centres` (the occluder's, the decoys placed before it) and the current target
+        keeps V >= `DECOY_MIN_TARGET_VISIBILITY` with the decoy alone in the way. Every draw comes from
+        `rng`; the number of draws used varies.
+        """
+        camera_pos = self.data.cam_xpos[camera_id].copy()
+        view_axis = -self.data.cam_xmat[camera_id].reshape(3, 3)[:, 2]  # MuJoCo cameras look along -z
+        cos_half = np.cos(np.deg2rad(fovy_deg) / 2)
+        for _ in range(DECOY_TRIES):
+            aim = rng.uniform(DECOY_AIM_LOW, DECOY_AIM_HIGH)
+            d_choice = float(rng.choice(DECOY_DISTANCES))
+            view = aim - camera_pos
+            dist = float(np.linalg.norm(view))
+            if (dist < 1e-6 or view @ view_axis / dist < cos_half
+                    or d_choice > MAX_FRACTION_OF_TARGET_DISTANCE * dist):
+                continue
+            rot = panel_rotation_facing(view)
+            centre = camera_pos + view / dist * d_choice
+            if any(np.linalg.norm(centre - np.asarray(c)) < DECOY_MIN_SEPARATION for c in avoid_centres):
+                continue
+            self.set_pose(centre, rot)
+            if not self._clear():
+                continue
+            if self.visibility.visibility(self.data, target_geoms, (centre, rot, self.half)) \
+                    < DECOY_MIN_TARGET_VISIBILITY:
+                continue
+            return centre, rot
+        self.park()
+        return None
+
+    def park(self) -> None:
+        """Move the panel out of every view (`sim.scene.DECOY_PARKED_POS`)."""
+        from lerobot_bavo.sim.scene import DECOY_PARKED_POS
+
+        self.set_pose(np.asarray(DECOY_PARKED_POS, float), np.eye(3))
+
+
+# --- decoy panels (a data-collection lever: `BavoEnv(decoy_panels=...)`, `bavo-collect --decoy-panels`) ---
+
+# Where a decoy may aim (base frame, metres): the point cloud's workspace crop, from 2 cm above the table.
+DECOY_AIM_LOW = np.array([-0.61, -0.37, 0.02])
+DECOY_AIM_HIGH = np.array([0.61, 0.37, 0.4])
+# Distances from the camera a decoy may take (metres): the occluder's candidates that put a panel in the
+# workspace rather than in front of the lens (the occluder itself is accepted at the farthest one that works).
+DECOY_DISTANCES = CANDIDATE_DISTANCES[:3]
+# A decoy may hide at most a fifth of the current target (the occluder hides at least four fifths).
+DECOY_MIN_TARGET_VISIBILITY = 0.8
+# Decoy centres keep this far (metres) from the occluder's: two panel widths, so the two never overlap.
+DECOY_MIN_SEPARATION = 0.15
+DECOY_TRIES = 40
