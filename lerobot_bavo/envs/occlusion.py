@@ -195,6 +195,21 @@ def points_on_occluder(
     return inside & present[..., None]
 
 
+# --- decoy panels (a data-collection lever: `BavoEnv(decoy_panels=...)`, `bavo-collect --decoy-panels`) ---
+
+# Where a decoy may aim (base frame, metres): the point cloud's workspace crop, from 2 cm above the table.
+DECOY_AIM_LOW = np.array([-0.61, -0.37, 0.02])
+DECOY_AIM_HIGH = np.array([0.61, 0.37, 0.4])
+# Distances from the camera a decoy may take (metres): the occluder's candidates that put a panel in the
+# workspace rather than in front of the lens (the occluder itself is accepted at the farthest one that works).
+DECOY_DISTANCES = CANDIDATE_DISTANCES[:3]
+# A decoy may hide at most a fifth of the current target (the occluder hides at least four fifths).
+DECOY_MIN_TARGET_VISIBILITY = 0.8
+# Decoy centres keep this far (metres) from the occluder's: two panel widths, so the two never overlap.
+DECOY_MIN_SEPARATION = 0.15
+DECOY_TRIES = 40
+
+
 @dataclass
 class OcclusionEvent:
     """One intervention: where the occluder went and what it hid (privileged, for `info`)."""
@@ -347,17 +362,3 @@ class OccluderPlacer:
 
         self.set_pose(np.asarray(DECOY_PARKED_POS, float), np.eye(3))
 
-
-# --- decoy panels (a data-collection lever: `BavoEnv(decoy_panels=...)`, `bavo-collect --decoy-panels`) ---
-
-# Where a decoy may aim (base frame, metres): the point cloud's workspace crop, from 2 cm above the table.
-DECOY_AIM_LOW = np.array([-0.61, -0.37, 0.02])
-DECOY_AIM_HIGH = np.array([0.61, 0.37, 0.4])
-# Distances from the camera a decoy may take (metres): the occluder's candidates that put a panel in the
-# workspace rather than in front of the lens (the occluder itself is accepted at the farthest one that works).
-DECOY_DISTANCES = CANDIDATE_DISTANCES[:3]
-# A decoy may hide at most a fifth of the current target (the occluder hides at least four fifths).
-DECOY_MIN_TARGET_VISIBILITY = 0.8
-# Decoy centres keep this far (metres) from the occluder's: two panel widths, so the two never overlap.
-DECOY_MIN_SEPARATION = 0.15
-DECOY_TRIES = 40
