@@ -205,7 +205,9 @@ def collection_summary(train: dict) -> dict | None:
             "episodes": info["total_episodes"], "frames": info["total_frames"],
             "discarded": len(record.get("discarded", [])), "next_seed": record.get("next_seed"),
             "base_seed": settings.get("base_seed", 0), "mixed_from": record.get("mixed_from"),
-            "n_points": settings.get("n_points", 256), "self_filter": settings.get("self_filter", False)}
+            "n_points": settings.get("n_points", 256), "self_filter": settings.get("self_filter", False),
+            "events_outside_contacts": settings.get("events_outside_contacts", False),
+            "decoy_panels": settings.get("decoy_panels", 0)}
 
 
 METHODS = {  # policy type -> (name on the card, what it is)
@@ -364,6 +366,10 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
             noise_flag += f" --n-points {data['n_points']}"
         if data.get("self_filter"):
             noise_flag += " --self-filter"
+        if data.get("events_outside_contacts"):
+            noise_flag += " --events-outside-contacts"
+        if data.get("decoy_panels"):
+            noise_flag += f" --decoy-panels {data['decoy_panels']}"
         noise_text = (
             f"DART-style execution noise: the env executed the expert's arm targets plus an AR(1) offset "
             f"of std {noise['std']} rad (correlation {noise['correlation']}), the clean targets are "
@@ -417,7 +423,8 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         how = ("the data variant's commands are in docs/training.md, \"Variants and baselines beside the "
                "recipe\"")
     elif self_filter:
-        how = (f"`TASK={task} DATA=dartsf512 scripts/train_task.sh {pol['type']}` with the recipe's other "
+        data_name = str(ds["repo_id"]).split("/")[-1].removeprefix(f"bavo_{task}_").removesuffix("_points")
+        how = (f"`TASK={task} DATA={data_name} scripts/train_task.sh {pol['type']}` with the recipe's other "
                "variables, after the self-filtered collection: docs/results/self_filter.md gives every "
                "command")
     else:
