@@ -162,7 +162,7 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_b2x",
                  "mixsr200sf_cpu_mlp3.5", "mixsr200sf_ft", "mixsr150sf", "mixsr200sfro", "mixsr200sfrc",
                  "mixsr200sfca", "mixsroc200sf", "mixsr400sf", "mixsr400sf_b2x",
-                 "mixsr400sf_b4x", "sf", "sf_b2x", "sf_half")
+                 "mixsr400sf_b4x", "sf", "sf_b2x", "sf_half", "sfdc1")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
