@@ -291,6 +291,7 @@ class BavoEnv(gym.Env):
                 r.close()
         self._renderer = self._video_renderer = self._visibility = None
         self._placer = None
+        self._decoy_placers = []  # they hold the closed visibility probe
 
     # ------------------------------------------------------------------ occlusion
     @property
