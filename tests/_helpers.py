@@ -1,4 +1,4 @@
-"""Small helpers shared by the task tests (imported as `from _helpers import ...`)."""
+"""Small helpers shared by the tests (imported as `from _helpers import ...`)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ import signal
 import threading
 import time
 from pathlib import Path
+
+import numpy as np
 
 from lerobot_bavo.features import ObservationSettings
 
@@ -167,3 +169,27 @@ def tiny_points_view(root, repo_id: str, settings):
                           progress=False))
     make_view(root, "points")
     return root.with_name(f"{root.name}_points")
+
+
+class IndependentVisibility:
+    """V = N(target pixels with the occluder drawn) / N(target pixels without it), from
+    segmentation renders of the real occluder geom."""
+
+    def __init__(self, model, height, width, camera_id):
+        from lerobot_bavo.sim.rendering import SceneRenderer
+
+        self.renderer = SceneRenderer(model, height, width)  # groups 0, 1, 2 and 4 (occluder)
+        self.camera_id = camera_id
+
+    def counts(self, data, target_geoms) -> tuple[int, int]:
+        ids = np.asarray(target_geoms)
+        with_occ = self.renderer.render_segmentation(data, self.camera_id)
+        without = self.renderer.render_segmentation(data, self.camera_id, hidden_groups=(4,))
+        return int(np.isin(with_occ, ids).sum()), int(np.isin(without, ids).sum())
+
+    def visibility(self, data, target_geoms) -> float:
+        n_occ, n_no = self.counts(data, target_geoms)
+        return n_occ / n_no if n_no else 0.0
+
+    def close(self):
+        self.renderer.close()

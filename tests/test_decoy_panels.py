@@ -19,12 +19,12 @@ import copy
 import mujoco
 import numpy as np
 import pytest
+from _helpers import IndependentVisibility
 
 from lerobot_bavo.datasets.collect_config import CollectConfig
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.experts import make_expert
 from lerobot_bavo.sim import constants as C
-from lerobot_bavo.sim.rendering import SceneRenderer
 
 SMALL = dict(image_height=48, image_width=64, n_points=64, render_mode=None)
 DISTANCES = (0.32, 0.27, 0.23)  # metres from the camera a decoy may take
@@ -96,14 +96,6 @@ def test_same_seed_same_decoys():
                 np.testing.assert_array_equal(x, y)
 
 
-def _visible_fraction(model, data, renderer, camera_id, target_ids):
-    """V of the target with whatever of group 4 is in place, from two segmentation renders."""
-    with_panels = renderer.render_segmentation(data, camera_id)
-    without = renderer.render_segmentation(data, camera_id, hidden_groups=(OCCLUDER_GROUP,))
-    n_with, n_without = int(np.isin(with_panels, target_ids).sum()), int(np.isin(without, target_ids).sum())
-    return n_with / n_without if n_without else 1.0
-
-
 @pytest.mark.parametrize("task,seed", [("cube_handoff", 0), ("block_stacking", 1), ("drawer_stowing", 2)])
 def test_placed_decoys_are_in_view_and_leave_the_target_visible(task, seed):
     env = BavoEnv(task, "stage", decoy_panels=2, image_height=120, image_width=160, n_points=64,
@@ -115,7 +107,7 @@ def test_placed_decoys_are_in_view_and_leave_the_target_visible(task, seed):
     cam_axis = -data.cam_xmat[cam].reshape(3, 3)[:, 2]
     occluder = np.asarray(info["occlusion"]["event"]["occluder_pos"])
     target_ids = np.asarray(env.current_target_geoms())
-    renderer = SceneRenderer(model, 240, 320)
+    recount = IndependentVisibility(model, 240, 320, cam)  # whatever of group 4 is in place
     placed = [p for p in info["occlusion"]["decoy_positions"] if p is not None]
     assert placed, "no decoy placed at reset"
     robot = [g for g in range(model.ngeom) if model.geom_group[g] == C.GROUP_ROBOT]
@@ -136,10 +128,10 @@ def test_placed_decoys_are_in_view_and_leave_the_target_visible(task, seed):
             alone.mocap_pos[model.body_mocapid[model.body(body).id]] = (0.0, 0.0, -2.0)
         mujoco.mj_kinematics(model, alone)
         mujoco.mj_camlight(model, alone)
-        assert _visible_fraction(model, alone, renderer, cam, target_ids) >= 0.75  # 0.8 at half resolution
-        seg = renderer.render_segmentation(alone, cam)
+        assert recount.visibility(alone, target_ids) >= 0.75  # 0.8 at half resolution
+        seg = recount.renderer.render_segmentation(alone, cam)
         assert (seg == geom).sum() > 0, "a placed decoy is not seen by the active camera"
-    renderer.close()
+    recount.close()
     env.close()
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from _helpers import IndependentVisibility
 
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.envs.conditions import OcclusionSchedule
@@ -106,28 +107,6 @@ def min_robot_distance(model, data) -> float:
         # ... and the near ones are measured exactly
         out = min(out, convex_distance(model, data, occ, g))
     return out
-
-
-class IndependentVisibility:
-    """V = N(target pixels with the occluder drawn) / N(target pixels without it), from
-    segmentation renders of the real occluder geom."""
-
-    def __init__(self, model, height, width, camera_id):
-        self.renderer = SceneRenderer(model, height, width)  # groups 0, 1, 2 and 4 (occluder)
-        self.camera_id = camera_id
-
-    def counts(self, data, target_geoms) -> tuple[int, int]:
-        ids = np.asarray(target_geoms)
-        with_occ = self.renderer.render_segmentation(data, self.camera_id)
-        without = self.renderer.render_segmentation(data, self.camera_id, hidden_groups=(4,))
-        return int(np.isin(with_occ, ids).sum()), int(np.isin(without, ids).sum())
-
-    def visibility(self, data, target_geoms) -> float:
-        n_occ, n_no = self.counts(data, target_geoms)
-        return n_occ / n_no if n_no else 0.0
-
-    def close(self):
-        self.renderer.close()
 
 
 def event_check(env, checker, event: dict) -> dict:
