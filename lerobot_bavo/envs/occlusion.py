@@ -252,19 +252,21 @@ class OccluderPlacer:
             kinematics are written).
         visibility: the env's `TargetVisibility` probe.
         robot_geoms, other_geoms: geom ids to keep clear of.
-        body: the panel's mocap body (its geom is `<body>_geom`): the occluder, or a decoy panel
+        body: the panel's mocap body (its geom: `sim.scene.panel_geom_name`): the occluder, or a decoy panel
             (`place_decoy`).
     """
 
     def __init__(self, model, data, visibility, robot_geoms, other_geoms, body: str = "occluder"):
         import mujoco
 
+        from lerobot_bavo.sim.scene import panel_geom_name
+
         self._mj = mujoco
         self.model, self.data = model, data
         self.visibility = visibility
         self.body = model.body(body).id
         self.mocap = model.body_mocapid[self.body]
-        self.geom = model.geom(f"{body}_geom").id
+        self.geom = model.geom(panel_geom_name(body)).id
         self.half = (OCCLUDER_HALF_EXTENTS[1], OCCLUDER_HALF_EXTENTS[2])
         self.robot_geoms = np.asarray(robot_geoms)
         self.other_geoms = np.asarray(other_geoms)

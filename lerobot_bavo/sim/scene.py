@@ -95,7 +95,14 @@ def build_base_spec(fovy: float = C.ACTIVE_CAMERA_FOVY) -> mujoco.MjSpec:
 
 
 OCCLUDER_BODY = "occluder"
-OCCLUDER_GEOM = "occluder_geom"
+
+
+def panel_geom_name(body_name: str) -> str:
+    """The box geom of a panel body (the occluder's, a decoy's): `<body>_geom`."""
+    return f"{body_name}_geom"
+
+
+OCCLUDER_GEOM = panel_geom_name(OCCLUDER_BODY)
 
 
 def add_occluder(spec: mujoco.MjSpec, half_extents) -> None:
@@ -105,11 +112,11 @@ def add_occluder(spec: mujoco.MjSpec, half_extents) -> None:
     arms; counterfactual renders drop its group (`GROUP_OCCLUDER`). Only occluded conditions
     build it.
     """
-    _add_panel(spec, OCCLUDER_BODY, OCCLUDER_GEOM, half_extents, pos=[0, 0, 1.0])
+    _add_panel(spec, OCCLUDER_BODY, half_extents, pos=[0, 0, 1.0])
 
 
 # Decoy panels (`BavoEnv(decoy_panels=...)`, a data-collection lever): copies of the occluder that never
-# hide the current target. Named `decoy_panel_<i>` / `decoy_panel_<i>_geom`, parked at `DECOY_PARKED_POS`
+# hide the current target. Named `decoy_panel_<i>` (geom: `panel_geom_name`), parked at `DECOY_PARKED_POS`
 # (below the floor, out of every view) until placed.
 DECOY_BODY_PREFIX = "decoy_panel"
 DECOY_PARKED_POS = (0.0, 0.0, -2.0)
@@ -124,11 +131,10 @@ def add_decoy_panels(spec: mujoco.MjSpec, half_extents, count: int) -> None:
     observation a decoy looks exactly like the occluder. In `GROUP_OCCLUDER`, so the privileged visibility
     renders drop them as they drop the occluder: V and CVG measure the benchmark occluder alone."""
     for i in range(count):
-        name = decoy_body_name(i)
-        _add_panel(spec, name, f"{name}_geom", half_extents, pos=list(DECOY_PARKED_POS))
+        _add_panel(spec, decoy_body_name(i), half_extents, pos=list(DECOY_PARKED_POS))
 
 
-def _add_panel(spec: mujoco.MjSpec, body_name: str, geom_name: str, half_extents, pos) -> None:
+def _add_panel(spec: mujoco.MjSpec, body_name: str, half_extents, pos) -> None:
     body = spec.worldbody.add_body(name=body_name, mocap=True, pos=pos)
-    body.add_geom(name=geom_name, type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half_extents),
+    body.add_geom(name=panel_geom_name(body_name), type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half_extents),
                   rgba=[0.16, 0.42, 0.46, 1], group=C.GROUP_OCCLUDER, contype=0, conaffinity=0, mass=0.1)
