@@ -52,3 +52,25 @@ def test_malformed_label_is_a_usage_error(capsys):
     with pytest.raises(SystemExit):
         tool.main(["--label", "just-a-path.jsonl"])
     assert "want NAME=episodes.jsonl" in capsys.readouterr().err
+
+
+def test_first_trigger_split_separates_early_events(tmp_path, capsys):
+    tool = load_script("scripts/milestone_stops.py")
+    rows = [{"task": "cube_handoff", "condition": "random", "seed": 0, "progress": 0, "triggers": [64, 140]},
+            {"task": "cube_handoff", "condition": "random", "seed": 1, "progress": 5, "triggers": [88, 160]},
+            {"task": "cube_handoff", "condition": "random", "seed": 2, "progress": 2, "triggers": [111, 190]},
+            {"task": "cube_handoff", "condition": "clean", "seed": 0, "progress": 1, "triggers": []}]
+    log = tmp_path / "r.jsonl"
+    log.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    # the boundary step itself counts as not before it
+    assert [tool.condition_group(r, 88) for r in rows] == [
+        "random, first trigger < 88", "random, first trigger >= 88", "random, first trigger >= 88", "clean"]
+    assert tool.condition_group(rows[0], None) == "random"
+    tool.main(["--label", f"a={log}", "--first-trigger-split", "88"])
+    out = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| a |")]
+    assert out == [
+        "| a | clean | 1 | 0 / 1 / 0 / 0 / 0 / 0 | 100 % | 0 % | - | - | - |",
+        "| a | random, first trigger < 88 | 1 | 1 / 0 / 0 / 0 / 0 / 0 | 0 % | - | - | - | - |",
+        "| a | random, first trigger >= 88 | 2 | 0 / 0 / 1 / 0 / 0 / 1 "
+        "| 100 % | 100 % | 50 % | 100 % | 100 % |",
+    ]
