@@ -213,6 +213,20 @@ class ManiFlowConfig(PreTrainedConfig):
             snapped to the two ends, the 0.45 release becomes "closed", the right gripper never lets go of
             the bar and every policy stopped at M2 (docs/results/first_grasp.md). Inference only, like the
             snapping itself.
+        relative_action_dims: Action dimensions the network predicts relative to the current state (the
+            state entry of the same index, last observation step), in MIN_MAX units and divided by
+            `relative_action_scales`: r = (a_n - s_n) / scale (`policies/relative.py`). Training turns the
+            dataset's chunks into r, inference turns the sampled r back into absolute targets before the
+            clipping and snapping, so the executed actions and the checkpoint's interface are unchanged.
+            Why: a step from the current state spans a fraction of the joint's range, so a network that errs
+            by a fixed fraction of what it predicts errs less in radians (docs/results/relative_actions.md).
+            Empty (default): absolute targets. Needs the state and action to share their layout on these
+            dimensions (BAVO's do; the grippers, commands against finger positions, must stay absolute):
+            `python -m lerobot_bavo.datasets.relative_actions --root DATASET` prints BAVO's arm joints'
+            flags.
+        relative_action_scales: One scale per entry of `relative_action_dims` (or one for all), > 0, in
+            MIN_MAX units: about the largest |a_n - s_n| in the training chunks (the command above reads the
+            0.99 quantile from the dataset), so that r is about unit-sized like the absolute targets.
         ema_power: EMA warm-up power: decay at update k is clip(1 - (1 + k) ** -ema_power, 0, ema_max_decay).
         ema_max_decay: Upper bound of the EMA decay.
         flow_batch_ratio: Fraction of each batch trained with plain flow matching; the remaining
@@ -321,6 +335,10 @@ class ManiFlowConfig(PreTrainedConfig):
     binary_action_dims: tuple[int, ...] | None = None
     binary_action_levels: tuple[float, ...] = (-1.0, 1.0)
 
+    # Action parametrisation (training and inference alike).
+    relative_action_dims: tuple[int, ...] = ()
+    relative_action_scales: tuple[float, ...] = ()
+
     # Training objective and EMA.
     ema_power: float = 0.75
     ema_max_decay: float = 0.9999
@@ -401,6 +419,7 @@ class ManiFlowConfig(PreTrainedConfig):
                 f"(MIN_MAX-normalised). Got {list(self.binary_action_levels)}."
             )
         self.binary_action_levels = levels
+        self._check_relative_actions()
         if not 0.0 <= self.occluder_dropout <= 1.0:
             raise ValueError(
                 f"`occluder_dropout` must be a probability in [0, 1]. Got {self.occluder_dropout}."
@@ -434,6 +453,30 @@ class ManiFlowConfig(PreTrainedConfig):
         # LeRobot's `diffuser` cosine scheduler needs the optional `diffusers` package; this one has the same
         # shape (linear warm-up, then cosine to zero over the remaining steps) with no extra dependency.
         return CosineAnnealingWithWarmupSchedulerConfig(num_warmup_steps=self.scheduler_warmup_steps)
+
+    def _check_relative_actions(self) -> None:
+        """Normalise and check `relative_action_dims` / `relative_action_scales` (one scale per dimension,
+        a single scale broadcast); the checks against the features are in `validate_features`."""
+        dims = tuple(int(d) for d in self.relative_action_dims)
+        scales = tuple(float(v) for v in self.relative_action_scales)
+        if len(set(dims)) != len(dims) or any(d < 0 for d in dims):
+            raise ValueError(f"`relative_action_dims` must be distinct indices >= 0. Got {list(dims)}.")
+        if dims and len(scales) == 1:
+            scales = scales * len(dims)
+        if len(scales) != len(dims):
+            raise ValueError(
+                "`relative_action_scales` needs one scale per entry of `relative_action_dims` "
+                f"({len(dims)}) or one for all; got {len(scales)}. `python -m "
+                "lerobot_bavo.datasets.relative_actions --root DATASET` prints both flags for a dataset."
+            )
+        if not all(math.isfinite(v) and v > 0 for v in scales):
+            raise ValueError(f"`relative_action_scales` must be finite and > 0. Got {list(scales)}.")
+        if dims:
+            modes = {k: self.normalization_mapping.get(k) for k in ("ACTION", "STATE")}
+            if any(m != NormalizationMode.MIN_MAX for m in modes.values()):
+                raise ValueError("`relative_action_dims` subtracts the MIN_MAX-normalised state from the "
+                                 f"MIN_MAX-normalised action; ACTION and STATE are normalised with {modes}.")
+        self.relative_action_dims, self.relative_action_scales = dims, scales
 
     def _check_binary_action_dims_mode(self) -> None:
         action_mode = self.normalization_mapping.get("ACTION")
@@ -504,6 +547,20 @@ class ManiFlowConfig(PreTrainedConfig):
                     "action; "
                     f"{bad} do not. Set them to the action's gripper dimensions, or [] for none."
                 )
+        if self.relative_action_dims:
+            action_dim = int(self.output_features[ACTION].shape[0]) if self.output_features else None
+            problems = [f"{d} is not an index of the {state_dim}-dim state" for d in self.relative_action_dims
+                        if d >= state_dim]
+            if action_dim is not None:
+                problems += [f"{d} is not an index of the {action_dim}-dim action"
+                             for d in self.relative_action_dims if d >= action_dim]
+            problems += [f"{d} is snapped as a binary command (`binary_action_dims`)"
+                         for d in self.relative_action_dims if d in (self.binary_action_dims or ())]
+            problems += [f"{d} is hidden from the policy (`ignored_state_dims`)"
+                         for d in self.relative_action_dims if d in self.ignored_state_dims]
+            if problems:
+                raise ValueError(f"`relative_action_dims` {list(self.relative_action_dims)}: "
+                                 + "; ".join(problems))
         expected = {
             OBS_STATE: FeatureType.STATE,
             OBS_POINT_CLOUD: FeatureType.STATE,

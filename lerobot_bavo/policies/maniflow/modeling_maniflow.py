@@ -33,6 +33,7 @@ from lerobot_bavo.features import (
 from lerobot_bavo.policies.augment import occluder_dropout
 from lerobot_bavo.policies.ensemble import ChunkEnsemble
 from lerobot_bavo.policies.heap import keep_freed_heap
+from lerobot_bavo.policies.relative import as_index, to_absolute, to_relative
 
 from .configuration_maniflow import ManiFlowConfig
 
@@ -586,6 +587,10 @@ class ManiFlowPolicy(PreTrainedPolicy):
         # inside a step); not saved: the config holds the dims
         self.register_buffer("ignored_state_index", torch.tensor(config.ignored_state_dims, dtype=torch.long),
                              persistent=False)
+        # `config.relative_action_dims` / `_scales` likewise (the config holds them)
+        self.register_buffer("relative_action_index", as_index(config.relative_action_dims), persistent=False)
+        scales = torch.tensor(config.relative_action_scales, dtype=torch.float32)
+        self.register_buffer("relative_action_scale", scales, persistent=False)
         self.reset()
         # `config.compile` takes effect at the first loss computation (`begin_training_step`), not here, so
         # loading a checkpoint trained compiled for inference (bavo-eval, lerobot-eval) runs eager networks
@@ -740,6 +745,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
             raise ValueError(f"`noise` must have shape {shape}. Got {tuple(noise.shape)}.")
         actions = model.sample(context, noise.to(device=context.device, dtype=context.dtype),
                                self.config.num_inference_steps)
+        # the state as given (`ignored_state_dims` cannot be relative ones: the config refuses it)
+        actions = to_absolute(actions, batch[OBS_STATE], self.relative_action_index,
+                              self.relative_action_scale)
         if self.config.clip_actions:
             actions = actions.clamp(-1.0, 1.0)
         return snap_binary_dims(actions, self.config.binary_action_dims, self.config.binary_action_levels)
@@ -885,6 +893,9 @@ class ManiFlowPolicy(PreTrainedPolicy):
         x1 = batch[ACTION]  # (B, H, A), normalised
         if x1.ndim != 3 or x1.shape[1] != cfg.horizon:
             raise ValueError(f"Expected '{ACTION}' (B, {cfg.horizon}, A). Got {tuple(x1.shape)}.")
+        # what the network predicts: absolute targets, or for `relative_action_dims` the scaled step from the
+        # current state
+        x1 = to_relative(x1, batch[OBS_STATE], self.relative_action_index, self.relative_action_scale)
         b = x1.shape[0]
         n_ct = int(b * (1.0 - cfg.flow_batch_ratio))
         n_fm = b - n_ct
