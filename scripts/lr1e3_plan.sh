@@ -14,9 +14,9 @@ cd "$(dirname "$0")/.."
 export PATH=$PWD/.venv/bin:$PATH OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
 T=${TASK:?set TASK, e.g. TASK=dustpan_sweeping}
 stamp() { echo "[lr1e3_plan $(date -u +%H:%M:%S)] $*"; }
-successes() {  # successes EVAL_DIR: successful episodes in its episodes.jsonl
-    python -c 'import json, sys; print(sum(bool(json.loads(l)["success"]) for l in open(sys.argv[1]) if l.strip()))' \
-        "$1/episodes.jsonl"
+successes() {  # successes EVAL_DIR: successful episodes in its episodes.jsonl (the eval package's own reader)
+    python -c 'import sys; from pathlib import Path; from lerobot_bavo.eval.run import read_episode_records as r
+print(sum(bool(e["success"]) for e in r(Path(sys.argv[1]))))' "$1/episodes.jsonl"
 }
 SELF_FILTER=1 DATA=dartsf512 TASK=$T bash scripts/train_task.sh data || { stamp data failed; exit 1; }
 for m in ${METHODS:-afar maniflow}; do
