@@ -23,6 +23,11 @@
 #                                             # body dropped, 512 stored points: docs/results/self_filter.md),
 #                                             # data variant dartsf512, shipped to checkpoints/<method>_<task>_sf,
 #                                             # evaluated in outputs/eval/grid_table/runs/<method>-self-filter/...
+#   SELF_FILTER=1 LR=1e-3 THREADS=2 GATE=1 bash scripts/train_task.sh recipe METHOD  # the recipe at another
+#                                             # peak lr (docs/results/learning_rate.md): run, folder and grid entry
+#                                             # get _lr1e3 / -lr1e-3; GATE=1 first validates it and the recipe's
+#                                             # checkpoint of the same seed (seeds 1000-1019, clean + stage) and
+#                                             # ships and tests it only with at least the recipe's successes
 #
 # The shipped A-FARs (checkpoints/afar_<task>: step 4000 of a 5000-step cosine schedule, fixed in advance):
 #   TASK=block_stacking bash scripts/train_task.sh recipe afar
@@ -37,7 +42,8 @@
 # Arguments after the stage go to lerobot-train (e.g. `afar --policy.points_per_step=128`).
 # Environment overrides: TASK, DEMOS, BIN, TRAIN_SECONDS, STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM,
 # TAG (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/cube_handoff_maniflow_state_b256_s1000), STOP_AT,
-# WORKERS (collection and evaluation processes, default 2), and DATA: empty for the noise-free demonstrations
+# WORKERS (collection and evaluation processes, default 2), GATE (recipe: 1 validates before shipping), NOTES
+# (recipe: a Markdown file for the card, ship_checkpoint.py --notes), and DATA: empty for the noise-free demonstrations
 # (outputs/datasets/bavo_<task>), `dart` for the DART-style ones collected with `--execution-noise $NOISE`
 # (default 0.01 rad; outputs/datasets/bavo_<task>_dart, runs get a _dart suffix); SELF_FILTER=1 collects with
 # `--n-points 512 --self-filter` (use it with DATA=dartsf512, as `recipe` does); CLEAN_CONTACTS=1 adds
@@ -103,6 +109,16 @@ test_eval() {  # test_eval POLICY OUTPUT_DIR [bavo-eval args...]: the 40 test se
         --seed 2000 --workers "$WORKERS" --output-dir "$out" "$@"
 }
 
+val_eval() {  # val_eval POLICY OUTPUT_DIR: the validation seeds 1000-1019, clean + stage, no videos
+    OMP_NUM_THREADS=1 ${BIN}bavo-eval --policy "$1" --tasks "$TASK" --conditions clean,stage --episodes 20 \
+        --seed 1000 --workers "$WORKERS" --videos 0 --output-dir "$2"
+}
+
+successes() {  # successes EVAL_DIR: successful episodes of its episodes.jsonl (the eval package's own reader)
+    ${BIN}python -c 'import sys; from pathlib import Path; from lerobot_bavo.eval.run import read_episode_records as r
+print(sum(bool(e["success"]) for e in r(Path(sys.argv[1]))))' "$1/episodes.jsonl"
+}
+
 case "${1:-}" in
     collect)
         ${BIN}bavo-collect --task "$TASK" --condition stage --episodes "$DEMOS" --repo-id "$REPO" \
@@ -159,21 +175,43 @@ case "${1:-}" in
         # the data variant, the shipped folder's suffix and the grid entry's suffix
         data=dart suffix="" entry=""
         [ -n "$SELF_FILTER" ] && data=dartsf512 suffix=_sf entry=-self-filter
-        export DATA=$data STEPS=5000 BATCH=128 LR=3e-4 WARMUP=200 SAVE_FREQ=500 THREADS=1 TAG=_p128_od50
+        # another peak lr than the recipe's 3e-4 is a variant: 1e-3 gives _lr1e3 (run, folder) and -lr1e-3 (grid)
+        lr=${LR:-3e-4} lrtag=""
+        [ "$lr" = 3e-4 ] || lrtag=_lr${lr//-/}
+        export DATA=$data STEPS=5000 BATCH=128 LR=$lr WARMUP=200 SAVE_FREQ=500 THREADS=${THREADS:-1} \
+            TAG=_p128_od50$lrtag
+        seedsuffix=""  # the first training seed's folders; others get a suffix
+        [ "$SEED" = 1000 ] || seedsuffix=_s$SEED
+        # GATE=1's reference: the recipe's checkpoint of the same training seed (checked before any work)
+        reference="checkpoints/${method}_${TASK}$suffix$seedsuffix"
+        if [ -n "${GATE:-}" ]; then
+            [ -n "$lrtag" ] || { echo "[recipe] GATE=1 compares a variant with the recipe: set LR" >&2; exit 2; }
+            [ -d "$reference" ] || { echo "[recipe] GATE=1: no recipe checkpoint $reference" >&2; exit 2; }
+        fi
         bash "$0" data
-        run="${TASK}_${method}_p128_od50_${data}_s$SEED"
+        run="${TASK}_${method}_p128_od50${lrtag}_${data}_s$SEED"
         ckpt=$(printf %06d "$STOP_AT")
         # the 5000-step schedule stopped once step STOP_AT is saved (the compared point, fixed in advance)
         bash "$0" recipe-train "$method"
+        [ -d "outputs/train/$run/checkpoints/$ckpt" ] || { echo "[recipe] $run: step $STOP_AT not saved" >&2; exit 1; }
+        if [ -n "${GATE:-}" ]; then
+            # the validation gate of docs/results/learning_rate.md: at least the successes of the recipe's
+            # checkpoint of the same seed, on the same seeds and machine
+            val="outputs/eval/val_${TASK}_${method}"
+            val_eval "outputs/train/$run/checkpoints/$ckpt/pretrained_model" "$val${lrtag}$seedsuffix"
+            val_eval "$reference" "${val}_recipe$seedsuffix"
+            a=$(successes "$val${lrtag}$seedsuffix") b=$(successes "${val}_recipe$seedsuffix")
+            echo "[recipe] $run: validation successes $a, recipe $b (of 40)"
+            [ "$a" -ge "$b" ] || { echo "[recipe] $run: under the gate, not shipped or tested"; exit 0; }
+        fi
         # ship the inference weights, evaluate the shipped folder where `bavo-eval --grid
         # configs/grid_table.yaml` finds it (runs/<method>/s<SEED>/<task>), then write its card with the results
-        ship="checkpoints/${method}_${TASK}$suffix"  # the first training seed's; others get a suffix
-        [ "$SEED" = 1000 ] || ship="${ship}_s$SEED"
-        evaldir="outputs/eval/grid_table/runs/$method$entry/s$SEED/$TASK"
+        ship="checkpoints/${method}_${TASK}$suffix$lrtag$seedsuffix"
+        evaldir="outputs/eval/grid_table/runs/$method$entry${lrtag:+-lr${lr}}/s$SEED/$TASK"
         ${BIN}python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
         test_eval "$ship" "$evaldir" --videos 0
         ${BIN}python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
-            --output "$ship"
+            ${NOTES:+--notes "$NOTES"} --output "$ship"
         ${BIN}python scripts/grid_runs.py save ;;  # the episode logs to commit (docs/results/grid_table)
     *)
         sed -n 2,35p "$0"; exit 2 ;;
