@@ -264,3 +264,46 @@ def test_a_training_seed_on_fewer_tasks(tmp_path, monkeypatch):
         spec["methods"]["afar"]["checkpoints"]["s2"] = bad
         with pytest.raises(GridError, match=message):
             parse_grid(spec)
+
+
+def test_a_checkpoint_named_per_task(tmp_path, monkeypatch):
+    """A training seed given as task -> checkpoint (a setting chosen per task on the validation seeds, e.g.
+    lr 1e-3 where it passed its gate and the recipe's elsewhere): one run per task with that task's folder,
+    and the macro mean over those tasks (hand-computed below)."""
+    for name in ("ck_cube_lr", "ck_block_recipe"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "config.json").write_text("{}")
+    chosen = {"cube_handoff": str(tmp_path / "ck_cube_lr"),
+              "block_stacking": str(tmp_path / "ck_block_recipe")}
+    spec = {"tasks": ["cube_handoff", "block_stacking"], "conditions": ["stage"], "episodes": 2, "seed": 2000,
+            "methods": {"afar-chosen": {"checkpoints": {"s1": dict(chosen)}}}}
+    grid = parse_grid(spec)
+    (method,) = grid.methods
+    assert method.per_task and method.tasks_of("s1") == ("cube_handoff", "block_stacking")
+    assert [(label, Path(policy).name, tasks, folder.relative_to(tmp_path)) for label, policy, tasks, folder
+            in method.runs(tmp_path)] == [
+        ("s1", "ck_cube_lr", ("cube_handoff",), Path("runs/afar-chosen/s1/cube_handoff")),
+        ("s1", "ck_block_recipe", ("block_stacking",), Path("runs/afar-chosen/s1/block_stacking"))]
+    sr = {"ck_cube_lr": 62.5, "ck_block_recipe": 7.5}
+
+    def fake_evaluate(policy, tasks, conditions, episodes, seed, output_dir, **kwargs):
+        (task,) = tasks
+        return {"cells": {f"{task}/stage": {"sr": sr[Path(policy).name], "tps": 80.0, "cvg": None,
+                                             "joint": None, "n_episodes": episodes}}}
+
+    monkeypatch.setattr(run, "evaluate", fake_evaluate)
+    results = run_grid(grid, tmp_path)
+    chosen_results = results["methods"]["afar-chosen"]
+    assert chosen_results["mean_over_tasks"]["stage"]["mean"]["sr"] == 35.0  # (62.5 + 7.5) / 2
+    assert chosen_results["checkpoints"]["s1"] == chosen
+    assert json.loads((tmp_path / "grid.json").read_text())["methods"]["afar-chosen"]["checkpoints"]["s1"] \
+        == chosen
+    for bad, message in (({"cube_handof": chosen["cube_handoff"]}, r"unknown task 'cube_handof'"),
+                         ({"cube_handoff": 3}, r"on cube_handoff must be a path, got 3"),
+                         ({"cube_handoff": str(tmp_path / "ck_{task}")}, r"named per task holds no field"),
+                         ({"cube_handoff": "no/such"},
+                          r"task cube_handoff\): checkpoint 'no/such' not found"),
+                         ({"drawer_stowing": chosen["cube_handoff"]}, r"unknown task 'drawer_stowing'")):
+        spec["methods"]["afar-chosen"]["checkpoints"]["s1"] = bad
+        with pytest.raises(GridError, match=message):
+            parse_grid(spec)

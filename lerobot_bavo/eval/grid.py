@@ -17,6 +17,10 @@ A grid file (YAML) names the cells; `configs/grid_expert.yaml` is an example:
         checkpoints:
           s1000: checkpoints/afar_{task}
           s1001: {path: checkpoints/afar_{task}_s1001, tasks: [cube_handoff]}  # a seed on fewer tasks
+      afar-chosen:                          # a checkpoint named per task (e.g. a setting chosen per task on
+        checkpoints:                        # the validation seeds): task -> checkpoint, that seed's tasks
+          s1000: {cube_handoff: checkpoints/afar_cube_handoff_lr1e3,
+                  block_stacking: checkpoints/afar_block_stacking}
 
 The file is UTF-8 YAML of at most `MAX_GRID_BYTES`, without anchors or aliases (`&name`, `*name`; see
 `load_grid`). Relative checkpoint paths are resolved against the current directory. Every (method, training
@@ -70,8 +74,9 @@ TASK_FIELD = "{task}"  # in a checkpoint path: one single-task checkpoint per ta
 @dataclass(frozen=True)
 class Method:
     name: str
-    # training-seed label -> policy (expert name or checkpoint folder, as written; may hold TASK_FIELD)
-    checkpoints: dict[str, str]
+    # training-seed label -> policy (expert name or checkpoint folder, as written; may hold TASK_FIELD), or
+    # task -> checkpoint folder (a checkpoint named per task)
+    checkpoints: dict[str, str | dict[str, str]]
     tasks: tuple[str, ...]
     conditions: tuple[str, ...]
     # training-seed label -> the tasks that seed has, where fewer than `tasks` (`{path, tasks}` in the file)
@@ -88,20 +93,25 @@ class Method:
     @property
     def per_task(self) -> bool:
         """Single-task policies (the paper trains one per task): each (training seed, task) is its own run."""
-        return any(TASK_FIELD in policy for policy in self.checkpoints.values())
+        return any(isinstance(policy, dict) or TASK_FIELD in policy for policy in self.checkpoints.values())
+
+    def policy_of(self, label: str, task: str) -> str:
+        """The checkpoint of training seed `label` on `task`: its task's entry, or its path with `{task}`
+        filled in."""
+        policy = self.checkpoints[label]
+        return policy[task] if isinstance(policy, dict) else policy.replace(TASK_FIELD, task)
 
     def runs(self, output_dir: Path) -> list[tuple[str, str, tuple[str, ...], Path]]:
         """(label, policy, tasks, run folder) of every bavo-eval run this method takes."""
         if not self.per_task:
             return [(label, policy, self.tasks_of(label), run_dir(output_dir, self.name, label))
                     for label, policy in self.checkpoints.items()]
-        return [(label, policy.replace(TASK_FIELD, task), (task,),
-                 run_dir(output_dir, self.name, label) / task)
-                for label, policy in self.checkpoints.items() for task in self.tasks_of(label)]
+        return [(label, self.policy_of(label, task), (task,), run_dir(output_dir, self.name, label) / task)
+                for label in self.checkpoints for task in self.tasks_of(label)]
 
     def as_dict(self) -> dict:
         checkpoints = {label: ({"path": policy, "tasks": list(self.seed_tasks[label])}
-                               if label in self.seed_tasks else policy)
+                               if label in self.seed_tasks and not isinstance(policy, dict) else policy)
                        for label, policy in self.checkpoints.items()}
         return {"checkpoints": checkpoints, "tasks": list(self.tasks), "conditions": list(self.conditions)}
 
@@ -134,10 +144,13 @@ def _names(value, what: str, known, where: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _checkpoints(value, where: str) -> tuple[dict[str, str], dict[str, object]]:
+def _checkpoints(value, where: str) -> tuple[dict[str, str | dict[str, str]], dict[str, object]]:
     """A method's training-seed axis: one policy (label "0"), a list (labels "0", "1", ...) or label ->
-    policy, where a policy may be `{path: ..., tasks: [...]}` (that seed on those tasks only). Returns
-    (label -> policy, label -> its raw task list, checked by the caller against the method's tasks)."""
+    policy, where a policy may be `{path: ..., tasks: [...]}` (that seed on those tasks only) or a mapping
+    task -> checkpoint folder (that seed on those tasks, each with its own folder). Returns (label -> policy,
+    label -> its raw task list, checked by the caller against the method's tasks)."""
+    from lerobot_bavo.envs.tasks import TASKS
+
     if isinstance(value, str):
         value = [value]
     if isinstance(value, list):
@@ -155,6 +168,22 @@ def _checkpoints(value, where: str) -> tuple[dict[str, str], dict[str, object]]:
                 f"{where}: training-seed label {short_repr(label)} must be a plain name (letters, digits, "
                 "_ . + -)"
             )
+        if isinstance(policy, dict) and policy and not set(map(str, policy)) & {"path", "tasks"}:
+            # task -> checkpoint folder
+            unknown = sorted(set(map(str, policy)) - set(TASKS))
+            if unknown:
+                raise GridError(
+                    f"{where}: training seed {short_repr(label)} as a mapping is task -> checkpoint (or has "
+                    f"the keys path and tasks); unknown task {short_repr(unknown[0])}; choose from "
+                    f"{', '.join(TASKS)}"
+                )
+            bad = [task for task, path in policy.items() if not isinstance(path, str) or not path]
+            if bad:
+                raise GridError(f"{where}: checkpoint of {short_repr(label)} on {bad[0]} must be a path, got "
+                                f"{short_repr(policy[bad[0]])}")
+            seed_tasks[label] = list(policy)
+            out[label] = dict(policy)
+            continue
         if isinstance(policy, dict):
             unknown = sorted(set(map(str, policy)) - {"path", "tasks"})
             if unknown or "path" not in policy or "tasks" not in policy:
@@ -257,6 +286,11 @@ def parse_grid(data, source: str = "grid") -> Grid:
             seed_tasks[label] = tuple(t for t in m_tasks if t in chosen)
         method = Method(name, checkpoints, m_tasks, m_conds, seed_tasks)
         for label, policy in checkpoints.items():
+            if isinstance(policy, dict):
+                if any(set("{}") & set(path) for path in policy.values()):
+                    raise GridError(f"{where} (training seed {label}): a checkpoint named per task holds no "
+                                    "field")
+                continue
             if set("{}") & set(policy.replace(TASK_FIELD, "")):
                 raise GridError(
                     f"{where} (training seed {label}): the only field a checkpoint path may hold is "
