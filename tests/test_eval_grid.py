@@ -220,6 +220,19 @@ def test_a_checkpoint_path_holds_no_other_field(tmp_path):
         parse_grid(spec)
 
 
+def run_grid_with_stage_sr(grid, output_dir, monkeypatch, sr_of_folder: dict[str, float]) -> dict:
+    """`run_grid` with `evaluate` replaced: each single-task run's Stage cell gets the SR named for its
+    checkpoint folder (TPS 80), so that the aggregation can be checked against hand-computed means."""
+
+    def fake_evaluate(policy, tasks, conditions, episodes, seed, output_dir, **kwargs):
+        (task,) = tasks
+        return {"cells": {f"{task}/stage": {"sr": sr_of_folder[Path(policy).name], "tps": 80.0, "cvg": None,
+                                             "joint": None, "n_episodes": episodes}}}
+
+    monkeypatch.setattr(run, "evaluate", fake_evaluate)
+    return run_grid(grid, output_dir)
+
+
 def test_a_training_seed_on_fewer_tasks(tmp_path, monkeypatch):
     """`{path, tasks}` for a training seed (extra seeds on Cube Handoff only): that seed is run and averaged
     only on its tasks; a cell's mean ± std is over the seeds that have it, the macro mean over the seeds that
@@ -237,14 +250,7 @@ def test_a_training_seed_on_fewer_tasks(tmp_path, monkeypatch):
         ("s1", "ck_cube_handoff", ("cube_handoff",)), ("s1", "ck_block_stacking", ("block_stacking",)),
         ("s2", "ck_cube_handoff_s2", ("cube_handoff",))]
     sr = {"ck_cube_handoff": 50.0, "ck_block_stacking": 10.0, "ck_cube_handoff_s2": 20.0}
-
-    def fake_evaluate(policy, tasks, conditions, episodes, seed, output_dir, **kwargs):
-        (task,) = tasks
-        return {"cells": {f"{task}/stage": {"sr": sr[Path(policy).name], "tps": 80.0, "cvg": None,
-                                             "joint": None, "n_episodes": episodes}}}
-
-    monkeypatch.setattr(run, "evaluate", fake_evaluate)
-    results = run_grid(grid, tmp_path)
+    results = run_grid_with_stage_sr(grid, tmp_path, monkeypatch, sr)
     afar = results["methods"]["afar"]
     cube = afar["cells"]["cube_handoff/stage"]
     assert cube["n_seeds"] == 2 and cube["mean"]["sr"] == 35.0  # (50 + 20) / 2
@@ -285,14 +291,7 @@ def test_a_checkpoint_named_per_task(tmp_path, monkeypatch):
         ("s1", "ck_cube_lr", ("cube_handoff",), Path("runs/afar-chosen/s1/cube_handoff")),
         ("s1", "ck_block_recipe", ("block_stacking",), Path("runs/afar-chosen/s1/block_stacking"))]
     sr = {"ck_cube_lr": 62.5, "ck_block_recipe": 7.5}
-
-    def fake_evaluate(policy, tasks, conditions, episodes, seed, output_dir, **kwargs):
-        (task,) = tasks
-        return {"cells": {f"{task}/stage": {"sr": sr[Path(policy).name], "tps": 80.0, "cvg": None,
-                                             "joint": None, "n_episodes": episodes}}}
-
-    monkeypatch.setattr(run, "evaluate", fake_evaluate)
-    results = run_grid(grid, tmp_path)
+    results = run_grid_with_stage_sr(grid, tmp_path, monkeypatch, sr)
     chosen_results = results["methods"]["afar-chosen"]
     assert chosen_results["mean_over_tasks"]["stage"]["mean"]["sr"] == 35.0  # (62.5 + 7.5) / 2
     assert chosen_results["checkpoints"]["s1"] == chosen
