@@ -109,9 +109,11 @@ test_eval() {  # test_eval POLICY OUTPUT_DIR [bavo-eval args...]: the 40 test se
         --seed 2000 --workers "$WORKERS" --output-dir "$out" "$@"
 }
 
-val_eval() {  # val_eval POLICY OUTPUT_DIR: the validation seeds 1000-1019, clean + stage, no videos
-    OMP_NUM_THREADS=1 ${BIN}bavo-eval --policy "$1" --tasks "$TASK" --conditions clean,stage --episodes 20 \
-        --seed 1000 --workers "$WORKERS" --videos 0 --output-dir "$2"
+val_eval() {  # val_eval POLICY OUTPUT_DIR [bavo-eval args...]: EPISODES validation seeds from 1000, clean + stage
+    local policy=$1 out=$2
+    shift 2
+    ${BIN}bavo-eval --policy "$policy" --tasks "$TASK" --conditions clean,stage --episodes "$EPISODES" \
+        --seed 1000 --output-dir "$out" "$@"
 }
 
 successes() {  # successes EVAL_DIR: successful episodes of its episodes.jsonl (the eval package's own reader)
@@ -135,9 +137,8 @@ case "${1:-}" in
     eval)
         run=${2:?usage: eval RUN [STEP]}
         step=${3:-last}
-        ${BIN}bavo-eval --policy "outputs/train/$run/checkpoints/$step/pretrained_model" \
-            --tasks "$TASK" --conditions clean,stage --episodes "$EPISODES" --seed 1000 \
-            --workers 1 --videos 2 --output-dir "outputs/eval/${run}_$step" ;;
+        val_eval "outputs/train/$run/checkpoints/$step/pretrained_model" "outputs/eval/${run}_$step" \
+            --workers 1 --videos 2 ;;
     test)
         run=${2:?usage: test RUN STEP}
         step=$(printf %06d "${3:?usage: test RUN STEP}")
@@ -179,7 +180,7 @@ case "${1:-}" in
         lr=${LR:-3e-4} lrtag=""
         [ "$lr" = 3e-4 ] || lrtag=_lr${lr//-/}
         export DATA=$data STEPS=5000 BATCH=128 LR=$lr WARMUP=200 SAVE_FREQ=500 THREADS=${THREADS:-1} \
-            TAG=_p128_od50$lrtag
+            TAG=_p128_od50$lrtag EPISODES=20
         seedsuffix=""  # the first training seed's folders; others get a suffix
         [ "$SEED" = 1000 ] || seedsuffix=_s$SEED
         # GATE=1's reference: the recipe's checkpoint of the same training seed (checked before any work)
@@ -198,8 +199,9 @@ case "${1:-}" in
             # the validation gate of docs/results/learning_rate.md: at least the successes of the recipe's
             # checkpoint of the same seed, on the same seeds and machine
             val="outputs/eval/val_${TASK}_${method}"
-            val_eval "outputs/train/$run/checkpoints/$ckpt/pretrained_model" "$val${lrtag}$seedsuffix"
-            val_eval "$reference" "${val}_recipe$seedsuffix"
+            OMP_NUM_THREADS=1 val_eval "outputs/train/$run/checkpoints/$ckpt/pretrained_model" \
+                "$val${lrtag}$seedsuffix" --workers "$WORKERS" --videos 0
+            OMP_NUM_THREADS=1 val_eval "$reference" "${val}_recipe$seedsuffix" --workers "$WORKERS" --videos 0
             a=$(successes "$val${lrtag}$seedsuffix") b=$(successes "${val}_recipe$seedsuffix")
             echo "[recipe] $run: validation successes $a, recipe $b (of 40)"
             [ "$a" -ge "$b" ] || { echo "[recipe] $run: under the gate, not shipped or tested"; exit 0; }
