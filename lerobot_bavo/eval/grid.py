@@ -177,12 +177,10 @@ def _checkpoints(value, where: str) -> tuple[dict[str, str | dict[str, str]], di
                     f"the keys path and tasks); unknown task {short_repr(unknown[0])}; choose from "
                     f"{', '.join(TASKS)}"
                 )
-            bad = [task for task, path in policy.items() if not isinstance(path, str) or not path]
-            if bad:
-                raise GridError(f"{where}: checkpoint of {short_repr(label)} on {bad[0]} must be a path, got "
-                                f"{short_repr(policy[bad[0]])}")
             seed_tasks[label] = list(policy)
-            out[label] = dict(policy)
+            of_seed = f"{where}: checkpoint of {short_repr(label)}"
+            out[label] = {str(task): _policy_path(path, f"{of_seed} on {task}", per_task=True)
+                          for task, path in policy.items()}
             continue
         if isinstance(policy, dict):
             unknown = sorted(set(map(str, policy)) - {"path", "tasks"})
@@ -193,13 +191,21 @@ def _checkpoints(value, where: str) -> tuple[dict[str, str | dict[str, str]], di
                 )
             seed_tasks[label] = policy["tasks"]
             policy = policy["path"]
-        if not isinstance(policy, str) or not policy:
-            raise GridError(
-                f"{where}: checkpoint of {short_repr(label)} must be a path or an expert name, got "
-                f"{short_repr(policy)}"
-            )
-        out[label] = policy
+        out[label] = _policy_path(policy, f"{where}: checkpoint of {short_repr(label)}", per_task=False)
     return out, seed_tasks
+
+
+def _policy_path(value, where: str, per_task: bool) -> str:
+    """One policy as written: an expert name or a checkpoint folder. A training seed's path may hold the one
+    field TASK_FIELD (one checkpoint per task); a folder already named per task holds none."""
+    if not isinstance(value, str) or not value:
+        raise GridError(f"{where} must be a path{'' if per_task else ' or an expert name'}, got "
+                        f"{short_repr(value)}")
+    if per_task and set("{}") & set(value):
+        raise GridError(f"{where}: a checkpoint named per task holds no field")
+    if set("{}") & set(value.replace(TASK_FIELD, "")):
+        raise GridError(f"{where}: the only field a checkpoint path may hold is {TASK_FIELD}")
+    return value
 
 
 def check_policy(policy: str, where: str) -> None:
@@ -285,17 +291,6 @@ def parse_grid(data, source: str = "grid") -> Grid:
                             f"{where}.checkpoints.{label}.tasks (of the method's)")
             seed_tasks[label] = tuple(t for t in m_tasks if t in chosen)
         method = Method(name, checkpoints, m_tasks, m_conds, seed_tasks)
-        for label, policy in checkpoints.items():
-            if isinstance(policy, dict):
-                if any(set("{}") & set(path) for path in policy.values()):
-                    raise GridError(f"{where} (training seed {label}): a checkpoint named per task holds no "
-                                    "field")
-                continue
-            if set("{}") & set(policy.replace(TASK_FIELD, "")):
-                raise GridError(
-                    f"{where} (training seed {label}): the only field a checkpoint path may hold is "
-                    f"{TASK_FIELD}"
-                )
         for label, policy, run_tasks, _ in method.runs(Path(".")):
             of_task = f", task {run_tasks[0]}" if method.per_task else ""
             check_policy(policy, f"{where} (training seed {label}{of_task})")
