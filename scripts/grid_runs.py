@@ -8,7 +8,8 @@
 `save` copies every run under `<output-dir>/runs/` that has episodes (`runs/<method>/<label>[/<task>]/`, the
 layout `bavo-eval --grid` and `scripts/train_task.sh recipe` write) to the same path under the archive: its
 `run.json` (seed, checkpoint digest, point frame), its `results.md`, and its per-episode log `episodes.jsonl`
-gzipped (~110 KB per 120 policy episodes; a fixed gzip header, so an unchanged log gives the same bytes).
+gzipped (~110 KB per 120 policy episodes; a fixed gzip header, so an unchanged log gives the same bytes, and an
+archived log whose records are unchanged is left as it is).
 The log is the measurement itself: every SR, TPS, CVG and Joint of the run is computed from it.
 
 `restore` writes every archived run back into `<output-dir>/runs/...` where that run has no episode log yet.
@@ -54,7 +55,12 @@ def save(output_dir: Path, archive: Path) -> int:
         # complete records only: a run still being written may end in a line cut short, which bavo-eval
         # would otherwise append its next record to after a restore
         data = log.read_bytes()
-        (dest / PACKED).write_bytes(gzip_bytes(data[: data.rfind(b"\n") + 1]))
+        data = data[: data.rfind(b"\n") + 1]
+        packed = dest / PACKED
+        # an archived log with the same records stays as it is, whatever compressor wrote it (older runs
+        # were packed with other gzip settings): rewriting it would only churn bytes in the repository
+        if not (packed.is_file() and gzip.decompress(packed.read_bytes()) == data):
+            packed.write_bytes(gzip_bytes(data))
         print(f"saved {n:4d} episodes: {folder} -> {dest}")
         saved += 1
     return saved

@@ -46,3 +46,25 @@ def test_save_then_restore_round_trips_and_keeps_existing_logs(grid_runs, tmp_pa
     mine = write_run(other / "runs" / "expert" / "0", range(2000, 2001))
     assert grid_runs.restore(other, archive) == 0
     assert (other / "runs" / "expert" / "0" / "episodes.jsonl").read_bytes() == mine
+
+
+def test_save_leaves_an_archived_log_with_the_same_records_untouched(grid_runs, tmp_path):
+    """Archived logs packed by another compressor must not be rewritten when their records are unchanged."""
+    import gzip
+
+    out, archive = tmp_path / "out", tmp_path / "archive"
+    log = write_run(out / "runs" / "expert" / "0", range(2000, 2003))
+    packed = archive / "runs" / "expert" / "0" / "episodes.jsonl.gz"
+    packed.parent.mkdir(parents=True)
+    other_bytes = gzip.compress(log, compresslevel=1, mtime=123)
+    assert other_bytes != grid_runs.gzip_bytes(log)
+    packed.write_bytes(other_bytes)
+    assert grid_runs.save(out, archive) == 1
+    assert packed.read_bytes() == other_bytes  # same records: kept as they were packed
+
+    write_run(out / "runs" / "expert" / "1", range(2000, 2001))
+    stale = archive / "runs" / "expert" / "1" / "episodes.jsonl.gz"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(gzip.compress(b"{}\n", mtime=0))
+    grid_runs.save(out, archive)
+    assert gzip.decompress(stale.read_bytes()) == (out / "runs" / "expert" / "1" / "episodes.jsonl").read_bytes()
