@@ -8,8 +8,8 @@
 `save` copies every run under `<output-dir>/runs/` that has episodes (`runs/<method>/<label>[/<task>]/`, the
 layout `bavo-eval --grid` and `scripts/train_task.sh recipe` write) to the same path under the archive: its
 `run.json` (seed, checkpoint digest, point frame), its `results.md`, and its per-episode log `episodes.jsonl`
-gzipped (~110 KB per 120 policy episodes; a fixed gzip header, so an unchanged log gives the same bytes, and an
-archived log whose records are unchanged is left as it is).
+gzipped (~110 KB per 120 policy episodes; a fixed gzip header, so an unchanged log gives the same bytes, and
+an archived log whose records are unchanged is left as it is).
 The log is the measurement itself: every SR, TPS, CVG and Joint of the run is computed from it.
 
 `restore` writes every archived run back into `<output-dir>/runs/...` where that run has no episode log yet.
