@@ -3,6 +3,7 @@ already has episodes is never overwritten, and the archive's gzip is reproducibl
 
 from __future__ import annotations
 
+import gzip
 import json
 from pathlib import Path
 
@@ -50,8 +51,6 @@ def test_save_then_restore_round_trips_and_keeps_existing_logs(grid_runs, tmp_pa
 
 def test_save_leaves_an_archived_log_with_the_same_records_untouched(grid_runs, tmp_path):
     """Archived logs packed by another compressor must not be rewritten when their records are unchanged."""
-    import gzip
-
     out, archive = tmp_path / "out", tmp_path / "archive"
     log = write_run(out / "runs" / "expert" / "0", range(2000, 2003))
     packed = archive / "runs" / "expert" / "0" / "episodes.jsonl.gz"
