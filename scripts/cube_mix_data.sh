@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# The data of issue 27's Cube Handoff Stage + Random-time variants, collected with their seeded commands and
+# joined into one training view (docs/results/random_time.md, docs/results/learning_rate.md):
+#
+#   bash scripts/cube_mix_data.sh mixsr400sf      # 200 Stage + 200 Random-time (~33 min on the 2-core machine)
+#   bash scripts/cube_mix_data.sh mixs400r200sf   # 400 Stage + 200 Random-time (the first four collections too)
+#
+# Every source is 100 DART (0.01) demonstrations with 512 self-filtered points: Stage from seeds 0, 300, 700, 850,
+# Random-time from seeds 100, 500 (demonstrations stay below seed 1000: 1000-1039 validate, 2000 and up test).
+# Each step runs once: a collection leaves a marker beside its dataset when it has finished (bavo-collect resumes
+# a killed one), a view is built when its folder is absent, and the joined view leaves a marker too (a folder
+# without one is an interrupted join and is built again). Run it again after a stop.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+name=${1:?usage: cube_mix_data.sh mixsr400sf|mixs400r200sf}
+T=cube_handoff D=outputs/datasets/bavo_${T}
+case "$name" in
+    mixsr400sf) sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
+    mixs400r200sf) sources="dartsf512 dartsf512b dartsf512c dartsf512d dartsf512_random dartsf512_randomb" ;;
+    *) echo "cube_mix_data: no variant named '$name' (mixsr400sf or mixs400r200sf)" >&2; exit 2 ;;
+esac
+collection() {  # source name -> "condition first-seed"
+    case "$1" in
+        dartsf512) echo "stage 0" ;; dartsf512b) echo "stage 300" ;; dartsf512c) echo "stage 700" ;;
+        dartsf512d) echo "stage 850" ;; dartsf512_random) echo "random 100" ;; dartsf512_randomb) echo "random 500" ;;
+    esac
+}
+args=()
+for s in $sources; do
+    read -r condition seed <<<"$(collection "$s")"
+    if [ ! -f "${D}_$s.collected" ]; then
+        bavo-collect --task $T --condition "$condition" --episodes 100 --execution-noise 0.01 --seed "$seed" \
+            --repo-id "local/bavo_${T}_$s" --root "${D}_$s" --workers 2 --n-points 512 --self-filter
+        touch "${D}_$s.collected"
+    fi
+    [ -d "${D}_${s}_points" ] || python -m lerobot_bavo.datasets.views --root "${D}_$s" --view points
+    args+=(--source "${D}_${s}_points:100")
+done
+out=${D}_${name}_points
+if [ ! -f "$out.joined" ]; then
+    rm -rf "$out"
+    python scripts/mix_views.py --output "$out" "${args[@]}"
+    touch "$out.joined"
+fi
+echo "[cube_mix_data] $out ready"
