@@ -10,13 +10,15 @@
 #
 #   METHOD=maniflow SEEDS="1001 1002" bash scripts/mix400_lr1e3_plan.sh
 #
-# Needs outputs/datasets/bavo_cube_handoff_mixsr400sf_points (collection commands in the A-FAR plan).
+# The data come first (`scripts/cube_mix_data.sh mixsr400sf`: collected once, ~33 min on the 2-core machine, then
+# skipped).
 # Afterwards: the seed's grid entry in configs/grid_table.yaml and `python scripts/grid_runs.py save`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 m=${METHOD:?set METHOD=afar or METHOD=maniflow}
 case "$m" in afar|maniflow) ;; *) echo "mix400_lr1e3_plan: METHOD is afar or maniflow, not '$m'" >&2; exit 2 ;; esac
 T=cube_handoff
+bash scripts/cube_mix_data.sh mixsr400sf
 for SEED in ${SEEDS:-1000 1001 1002}; do
     S=$([ "$SEED" = 1000 ] && echo "" || echo "_s$SEED")
     SEED=$SEED DATA=mixsr400sf TASK=$T STEPS=10000 STOP_AT=8000 BATCH=128 LR=1e-3 WARMUP=200 SAVE_FREQ=500 \
