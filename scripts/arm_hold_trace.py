@@ -20,6 +20,17 @@ of them held, i.e. where the object was let go of or slipped, and prints both gr
 `--after` steps later (the policy's gripper commands, 1 = open): a gripper commanded open is a release, one
 still commanded closed a slip.
 
+With `--camera-phases` each episode also gets, per phase between consecutive milestones (phase k runs from
+the step milestone k was first reached to the step milestone k + 1 was, or to the episode's end when it never
+was; phase 0 starts at reset), the phase's length (steps), the camera arm's mean speed (mrad per step: the
+largest change of any of its 7 joint commands from one step to the next) and the share of its steps with the
+target hidden, and the run ends with their medians per phase, split by whether the episodes went on to the
+next milestone (`--pool LOG ...` prints that table pooled over saved `--output` logs, rolling nothing out).
+Why: every way of adding Random-time demonstrations to Cube Handoff's Stage ones costs Stage at the lift and
+the handoff, also when the Random-time frames teach the camera arm only
+(docs/results/random_time.md); a policy that learned to move the camera at any moment may move it where the
+Stage demonstrations hold it and lose the target (docs/results/learning_rate.md).
+
     python scripts/arm_hold_trace.py --policy checkpoints/afar_cube_handoff_mixsr200sf \\
         [--task cube_handoff] [--condition stage] [--seeds 1000-1019] [--output trace.jsonl]
 
@@ -29,6 +40,7 @@ Seeds default to validation seeds (1000+); test seeds (2000+) are for reporting 
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 
 import numpy as np
@@ -96,11 +108,60 @@ def release_or_slip(held: list[bool], commands: np.ndarray, after: int) -> dict:
             "grippers_after": [round(float(commands[later, g]), 2) for g in grippers]}
 
 
+def phase_bounds(progress: list[int]) -> list[tuple[int, int, bool]]:
+    """(start, end, completed) per phase entered: phase k spans [first step with progress >= k, first step with
+    progress >= k + 1), or to len(progress) with completed False when milestone k + 1 is never reached."""
+    bounds, start = [], 0
+    for end in milestone_steps(progress):
+        if end is None:
+            bounds.append((start, len(progress), False))
+            break
+        bounds.append((start, end, True))
+        start = end
+    return bounds
+
+
+def phase_camera(commands: np.ndarray, hidden: list[bool], start: int, end: int) -> dict:
+    """Length, camera-arm mean speed (mrad/step, the largest joint-command change into each step) and hidden
+    share of the steps [start, end). `commands` is T x 21 (the action layout of `lerobot_bavo.sim.constants`)."""
+    cam = commands[:, C.CAMERA_ARM]
+    steps = np.abs(np.diff(cam[max(start - 1, 0):end], axis=0)).max(axis=1) if end > start else np.zeros(0)
+    return {"steps": end - start,
+            "cam_mrad_per_step": round(1000 * float(steps.mean()), 2) if len(steps) else None,
+            "hidden_share": round(float(np.mean(hidden[start:end])), 3) if end > start else None}
+
+
+def read_jsonl(path: str) -> list[dict]:
+    """The JSON lines of an --output log, gzipped or not."""
+    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
+        return [json.loads(line) for line in f if line.strip()]
+
+
+def print_phase_table(rows: list[dict]) -> None:
+    """Medians per phase over the episodes that entered it, split by whether they reached the next milestone,
+    and how many of those phases had the target hidden for at least half their steps (the view lost)."""
+    print("| phase | went on | episodes | steps | camera mrad/step | target hidden | view lost |")
+    print("|---|---|---|---|---|---|---|")
+    for k in range(5):
+        for done in (True, False):
+            ph = [p for r in rows for p in r["phases"] if p["phase"] == k and p["completed"] == done]
+            if not ph:
+                continue
+
+            def med(key):
+                values = [p[key] for p in ph if p[key] is not None]
+                return f"{np.median(values):.2f}" if values else "-"
+
+            lost = sum((p["hidden_share"] or 0.0) >= 0.5 for p in ph)
+            print(f"| M{k} -> M{k + 1} | {'yes' if done else 'no'} | {len(ph)} | {med('steps')} | "
+                  f"{med('cam_mrad_per_step')} | {med('hidden_share')} | {lost} |")
+
+
 def main() -> None:
     from lerobot_bavo.envs.tasks import TASKS
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--policy", required=True, help="a checkpoint folder, or `expert`")
+    ap.add_argument("--policy", help="a checkpoint folder, or `expert` (required unless --pool)")
     ap.add_argument("--task", default="cube_handoff", choices=sorted(TASKS))
     ap.add_argument("--condition", default="stage", choices=["clean", "stage", "random"])
     ap.add_argument("--seeds", default="1000-1019", help="first-last (inclusive); validation seeds")
@@ -110,8 +171,22 @@ def main() -> None:
     ap.add_argument("--hold-tests", default="",
                     help="tests that mean a hand holds the object, comma-separated (Cube Handoff: m2,m3,m4)")
     ap.add_argument("--after", type=int, default=6, help="steps after the last held step to read grippers at")
+    ap.add_argument("--camera-phases", action="store_true",
+                    help="per phase between milestones: length, camera-arm speed and target-hidden share")
     ap.add_argument("--output", help="also write one JSON line per episode here")
+    ap.add_argument("--pool", nargs="+", metavar="LOG",
+                    help="roll nothing out: print the camera-phase table pooled over these --camera-phases "
+                         "--output logs (.jsonl or .jsonl.gz), e.g. the training seeds of one method")
     args = ap.parse_args()
+    if args.pool:
+        rows = [row for log in args.pool for row in read_jsonl(log)]
+        if missing := [log for log in args.pool if not any("phases" in r for r in read_jsonl(log))]:
+            ap.error(f"--pool: {', '.join(missing)} hold no camera phases (written without --camera-phases?)")
+        print(f"{len(rows)} episodes, {sum(r['success'] for r in rows)} successes")
+        print_phase_table(rows)
+        return
+    if not args.policy:
+        ap.error("--policy is required (or --pool LOG ...)")
     hold_tests = [t for t in args.hold_tests.split(",") if t]
     first, last = (int(s) for s in args.seeds.split("-"))
     env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
@@ -143,6 +218,9 @@ def main() -> None:
         commands = np.array(agent.commands[:len(progress)])
         row = {"seed": seed, "success": record["success"], "progress": record["progress"],
                "milestone_steps": milestone_steps(progress)}
+        if args.camera_phases:
+            row["phases"] = [dict(phase=k, completed=done, **phase_camera(commands, hidden, start, end))
+                             for k, (start, end, done) in enumerate(phase_bounds(progress))]
         if not record["success"]:
             row.update(travel_around_stop(progress, commands, hidden, args.window, args.held))
             row["tests_at_end"] = [k for k, v in base.task.evaluate(base.model, base.data).items() if v]
@@ -166,6 +244,8 @@ def main() -> None:
           f"steps before / after the last milestone, median over stopped episodes: "
           f"{median('travel_before_mrad'):.0f} / {median('travel_after_mrad'):.0f} mrad; "
           f"held share after it {median('held_share'):.2f}")
+    if args.camera_phases:
+        print_phase_table(rows)
 
 
 if __name__ == "__main__":
