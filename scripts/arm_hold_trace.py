@@ -109,8 +109,9 @@ def release_or_slip(held: list[bool], commands: np.ndarray, after: int) -> dict:
 
 
 def phase_bounds(progress: list[int]) -> list[tuple[int, int, bool]]:
-    """(start, end, completed) per phase entered: phase k spans [first step with progress >= k, first step with
-    progress >= k + 1), or to len(progress) with completed False when milestone k + 1 is never reached."""
+    """(start, end, completed) per phase entered: phase k spans [first step with progress >= k, first step
+    with progress >= k + 1), or to len(progress) with completed False when milestone k + 1 is never
+    reached."""
     bounds, start = [], 0
     for end in milestone_steps(progress):
         if end is None:
@@ -123,7 +124,8 @@ def phase_bounds(progress: list[int]) -> list[tuple[int, int, bool]]:
 
 def phase_camera(commands: np.ndarray, hidden: list[bool], start: int, end: int) -> dict:
     """Length, camera-arm mean speed (mrad/step, the largest joint-command change into each step) and hidden
-    share of the steps [start, end). `commands` is T x 21 (the action layout of `lerobot_bavo.sim.constants`)."""
+    share of the steps [start, end). `commands` is T x 21 (the action layout of `lerobot_bavo.sim.constants`).
+    """
     cam = commands[:, C.CAMERA_ARM]
     steps = np.abs(np.diff(cam[max(start - 1, 0):end], axis=0)).max(axis=1) if end > start else np.zeros(0)
     return {"steps": end - start,
@@ -137,6 +139,12 @@ def read_jsonl(path: str) -> list[dict]:
         return [json.loads(line) for line in f if line.strip()]
 
 
+def median_text(values: list) -> str:
+    """The median of the values that are not None, two decimals; '-' when there are none."""
+    values = [v for v in values if v is not None]
+    return f"{np.median(values):.2f}" if values else "-"
+
+
 def print_phase_table(rows: list[dict]) -> None:
     """Medians per phase over the episodes that entered it, split by whether they reached the next milestone,
     and how many of those phases had the target hidden for at least half their steps (the view lost)."""
@@ -147,14 +155,11 @@ def print_phase_table(rows: list[dict]) -> None:
             ph = [p for r in rows for p in r["phases"] if p["phase"] == k and p["completed"] == done]
             if not ph:
                 continue
-
-            def med(key):
-                values = [p[key] for p in ph if p[key] is not None]
-                return f"{np.median(values):.2f}" if values else "-"
-
+            steps, cam, hidden = (median_text([p[key] for p in ph])
+                                  for key in ("steps", "cam_mrad_per_step", "hidden_share"))
             lost = sum((p["hidden_share"] or 0.0) >= 0.5 for p in ph)
-            print(f"| M{k} -> M{k + 1} | {'yes' if done else 'no'} | {len(ph)} | {med('steps')} | "
-                  f"{med('cam_mrad_per_step')} | {med('hidden_share')} | {lost} |")
+            print(f"| M{k} -> M{k + 1} | {'yes' if done else 'no'} | {len(ph)} | {steps} | {cam} | {hidden} | "
+                  f"{lost} |")
 
 
 def main() -> None:

@@ -38,7 +38,9 @@ def test_phase_camera_by_hand():
     hidden = [False, True, True, False, False]
     got = arm_hold_trace.phase_camera(commands, hidden, 2, 5)
     # changes into steps 2, 3, 4: 4, 4 and 10 mrad
-    assert got == {"steps": 3, "cam_mrad_per_step": pytest.approx(6.0), "hidden_share": pytest.approx(1 / 3, abs=1e-3)}  # rounded to 3 places
+    # (hidden_share is rounded to 3 places)
+    assert got == {"steps": 3, "cam_mrad_per_step": pytest.approx(6.0),
+                   "hidden_share": pytest.approx(1 / 3, abs=1e-3)}
     assert arm_hold_trace.phase_camera(commands, hidden, 0, 2) == {
         "steps": 2, "cam_mrad_per_step": 0.0, "hidden_share": 0.5}
     assert arm_hold_trace.phase_camera(commands, hidden, 3, 3) == {
@@ -95,7 +97,8 @@ def test_pool_prints_the_phase_table_of_saved_logs_and_refuses_logs_without_phas
     import json
 
     def phase(k, done, steps, cam, hidden):
-        return {"phase": k, "completed": done, "steps": steps, "cam_mrad_per_step": cam, "hidden_share": hidden}
+        return {"phase": k, "completed": done, "steps": steps, "cam_mrad_per_step": cam,
+                "hidden_share": hidden}
 
     rows = [{"seed": 1, "success": False, "progress": 1,
              "phases": [phase(0, True, 90, 10.0, 0.1), phase(1, False, 600, 80.0, 0.75)]},
