@@ -158,8 +158,8 @@ def print_phase_table(rows: list[dict]) -> None:
             steps, cam, hidden = (median_text([p[key] for p in ph])
                                   for key in ("steps", "cam_mrad_per_step", "hidden_share"))
             lost = sum((p["hidden_share"] or 0.0) >= 0.5 for p in ph)
-            print(f"| M{k} -> M{k + 1} | {'yes' if done else 'no'} | {len(ph)} | {steps} | {cam} | {hidden} | "
-                  f"{lost} |")
+            went_on = "yes" if done else "no"
+            print(f"| M{k} -> M{k + 1} | {went_on} | {len(ph)} | {steps} | {cam} | {hidden} | {lost} |")
 
 
 def main() -> None:
