@@ -42,6 +42,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -184,9 +185,12 @@ def main() -> None:
                          "--output logs (.jsonl or .jsonl.gz), e.g. the training seeds of one method")
     args = ap.parse_args()
     if args.pool:
-        rows = [row for log in args.pool for row in read_jsonl(log)]
-        if missing := [log for log in args.pool if not any("phases" in r for r in read_jsonl(log))]:
+        if absent := [log for log in args.pool if not Path(log).is_file()]:
+            ap.error(f"--pool: no such log: {', '.join(absent)}")
+        logs = {log: read_jsonl(log) for log in args.pool}
+        if missing := [log for log, rows in logs.items() if not any("phases" in r for r in rows)]:
             ap.error(f"--pool: {', '.join(missing)} hold no camera phases (written without --camera-phases?)")
+        rows = [row for log_rows in logs.values() for row in log_rows]
         print(f"{len(rows)} episodes, {sum(r['success'] for r in rows)} successes")
         print_phase_table(rows)
         return
