@@ -24,11 +24,7 @@ for SEED in ${SEEDS:-1000 1001 1002}; do
     SEED=$SEED DATA=mixsr400sf TASK=$T STEPS=10000 STOP_AT=8000 BATCH=128 LR=1e-3 WARMUP=200 SAVE_FREQ=500 \
         THREADS=2 TAG=_p128_od50_b2x_lr1e3 bash scripts/train_task.sh recipe-train "$m"
     C=checkpoints/${m}_${T}_mixsr400sf_b2x_lr1e3$S
-    E=outputs/eval/grid_table/runs/$m-self-filter-stage+random-400-2x-lr1e-3/s$SEED/$T
-    python scripts/ship_checkpoint.py --run "outputs/train/${T}_${m}_p128_od50_b2x_lr1e3_mixsr400sf_s$SEED" \
-        --step 008000 --output "$C"
-    bavo-eval --policy "$C" --tasks $T --conditions clean,stage,random --episodes 40 --seed 2000 --workers 2 \
-        --videos 0 --output-dir "$E"
-    python scripts/ship_checkpoint.py --checkpoint "$C" --step 008000 --eval "$E/results.json" --output "$C" \
-        --notes "docs/results/learning_rate/card_notes_${m}_cube_mix400_b2x.md"
+    TASK=$T NOTES="docs/results/learning_rate/card_notes_${m}_cube_mix400_b2x.md" bash scripts/train_task.sh \
+        ship-test "${T}_${m}_p128_od50_b2x_lr1e3_mixsr400sf_s$SEED" 8000 "$C" \
+        "outputs/eval/grid_table/runs/$m-self-filter-stage+random-400-2x-lr1e-3/s$SEED/$T"
 done

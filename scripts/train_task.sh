@@ -19,6 +19,9 @@
 #                                             # checkpoints/<method>_<task> and evaluated on the 40 test seeds in
 #                                             # outputs/eval/grid_table/runs/<method>/s<SEED>/<task> (its episode
 #                                             # log copied to docs/results/grid_table); resumable
+#   bash scripts/train_task.sh ship-test RUN STEP FOLDER EVAL_DIR  # ship step STEP of outputs/train/RUN to
+#                                             # FOLDER (inference weights), test it on seeds 2000-2039 in
+#                                             # EVAL_DIR and write its card (with NOTES); `recipe` ends with it
 #   SELF_FILTER=1 bash scripts/train_task.sh recipe METHOD  # the same on self-filtered clouds (the robot's own
 #                                             # body dropped, 512 stored points: docs/results/self_filter.md),
 #                                             # data variant dartsf512, shipped to checkpoints/<method>_<task>_sf,
@@ -43,7 +46,7 @@
 # Environment overrides: TASK, DEMOS, BIN, TRAIN_SECONDS, STEPS, BATCH, LR, WARMUP, SAVE_FREQ, PRESET, SEED, DEVICE, THREADS, EPISODES, FROM,
 # TAG (a suffix of the run name, e.g. TAG=_b256 gives outputs/train/cube_handoff_maniflow_state_b256_s1000), STOP_AT,
 # WORKERS (collection and evaluation processes, default 2), GATE (recipe: 1 validates before shipping), NOTES
-# (recipe: a Markdown file for the card, ship_checkpoint.py --notes), and DATA: empty for the noise-free demonstrations
+# (recipe, ship-test: a Markdown file for the card, ship_checkpoint.py --notes), and DATA: empty for the noise-free demonstrations
 # (outputs/datasets/bavo_<task>), `dart` for the DART-style ones collected with `--execution-noise $NOISE`
 # (default 0.01 rad; outputs/datasets/bavo_<task>_dart, runs get a _dart suffix); SELF_FILTER=1 collects with
 # `--n-points 512 --self-filter` (use it with DATA=dartsf512, as `recipe` does); CLEAN_CONTACTS=1 adds
@@ -206,15 +209,19 @@ case "${1:-}" in
             echo "[recipe] $run: validation successes $a, recipe $b (of 40)"
             [ "$a" -ge "$b" ] || { echo "[recipe] $run: under the gate, not shipped or tested"; exit 0; }
         fi
-        # ship the inference weights, evaluate the shipped folder where `bavo-eval --grid
-        # configs/grid_table.yaml` finds it (runs/<method>/s<SEED>/<task>), then write its card with the results
-        ship="checkpoints/${method}_${TASK}$suffix$lrtag$seedsuffix"
-        evaldir="outputs/eval/grid_table/runs/$method$entry${lrtag:+-lr${lr}}/s$SEED/$TASK"
+        # evaluated where `bavo-eval --grid configs/grid_table.yaml` finds it (runs/<method>/s<SEED>/<task>)
+        bash "$0" ship-test "$run" "$STOP_AT" "checkpoints/${method}_${TASK}$suffix$lrtag$seedsuffix" \
+            "outputs/eval/grid_table/runs/$method$entry${lrtag:+-lr${lr}}/s$SEED/$TASK"
+        ${BIN}python scripts/grid_runs.py save ;;  # the episode logs to commit (docs/results/grid_table)
+    ship-test)  # ship the inference weights, test the shipped folder, then write its card with the results
+        run=${2:?usage: ship-test RUN STEP FOLDER EVAL_DIR}
+        ckpt=$(printf %06d "${3:?usage: ship-test RUN STEP FOLDER EVAL_DIR}")
+        ship=${4:?usage: ship-test RUN STEP FOLDER EVAL_DIR}
+        evaldir=${5:?usage: ship-test RUN STEP FOLDER EVAL_DIR}
         ${BIN}python scripts/ship_checkpoint.py --run "outputs/train/$run" --step "$ckpt" --output "$ship"
         test_eval "$ship" "$evaldir" --videos 0
         ${BIN}python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
-            ${NOTES:+--notes "$NOTES"} --output "$ship"
-        ${BIN}python scripts/grid_runs.py save ;;  # the episode logs to commit (docs/results/grid_table)
+            ${NOTES:+--notes "$NOTES"} --output "$ship" ;;
     *)
         sed -n 2,35p "$0"; exit 2 ;;
 esac
