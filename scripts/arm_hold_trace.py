@@ -54,6 +54,7 @@ from lerobot_bavo.eval.rollout import (
     run_episode,
     target_hidden,
 )
+from lerobot_bavo.eval.run import episode_log_path
 from lerobot_bavo.sim import constants as C
 
 ARMS = np.r_[C.LEFT_ARM, C.RIGHT_ARM]
@@ -134,9 +135,10 @@ def phase_camera(commands: np.ndarray, hidden: list[bool], start: int, end: int)
             "hidden_share": round(float(np.mean(hidden[start:end])), 3) if end > start else None}
 
 
-def read_jsonl(path: str) -> list[dict]:
-    """The JSON lines of an --output log, gzipped or not."""
-    with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
+def read_jsonl(path: Path) -> list[dict]:
+    """The JSON lines of an --output log, gzipped or not (its rows are not bavo-eval's episode records, so
+    `read_episode_records` does not take them)."""
+    with (gzip.open(path, "rt") if path.suffix == ".gz" else open(path)) as f:
         return [json.loads(line) for line in f if line.strip()]
 
 
@@ -180,16 +182,15 @@ def main() -> None:
     ap.add_argument("--camera-phases", action="store_true",
                     help="per phase between milestones: length, camera-arm speed and target-hidden share")
     ap.add_argument("--output", help="also write one JSON line per episode here")
-    ap.add_argument("--pool", nargs="+", metavar="LOG",
+    ap.add_argument("--pool", nargs="+", metavar="LOG", type=episode_log_path,
                     help="roll nothing out: print the camera-phase table pooled over these --camera-phases "
                          "--output logs (.jsonl or .jsonl.gz), e.g. the training seeds of one method")
     args = ap.parse_args()
     if args.pool:
-        if absent := [log for log in args.pool if not Path(log).is_file()]:
-            ap.error(f"--pool: no such log: {', '.join(absent)}")
         logs = {log: read_jsonl(log) for log in args.pool}
         if missing := [log for log, rows in logs.items() if not any("phases" in r for r in rows)]:
-            ap.error(f"--pool: {', '.join(missing)} hold no camera phases (written without --camera-phases?)")
+            ap.error(f"--pool: {', '.join(map(str, missing))} hold no camera phases "
+                     "(written without --camera-phases?)")
         rows = [row for log_rows in logs.values() for row in log_rows]
         print(f"{len(rows)} episodes, {sum(r['success'] for r in rows)} successes")
         print_phase_table(rows)

@@ -121,4 +121,4 @@ def test_pool_prints_the_phase_table_of_saved_logs_and_refuses_logs_without_phas
     assert out.returncode == 2 and "hold no camera phases" in out.stderr
     out = subprocess.run([sys.executable, script, "--pool", str(tmp_path / "c.jsonl")],
                          capture_output=True, text=True, timeout=300, cwd=root)
-    assert out.returncode == 2 and "no such log" in out.stderr
+    assert out.returncode == 2 and f"no episode log at {tmp_path / 'c.jsonl'}" in out.stderr
