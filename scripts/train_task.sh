@@ -223,5 +223,5 @@ case "${1:-}" in
         ${BIN}python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
             ${NOTES:+--notes "$NOTES"} --output "$ship" ;;
     *)
-        sed -n 2,35p "$0"; exit 2 ;;
+        sed -n 2,38p "$0"; exit 2 ;;
 esac
