@@ -13,7 +13,8 @@ record, else the evaluated cells). Without `--eval` the card says the checkpoint
 evaluate the shipped folder, then ship again with `--checkpoint DIR --eval results.json` (what
 `scripts/train_task.sh recipe` does).
 
-Inference settings (`--num-inference-steps`, `--n-action-steps`, `--temporal-ensemble-coeff`) are written into
+Inference settings (`--num-inference-steps`, `--n-action-steps`, `--temporal-ensemble-coeff`,
+`--smoothed-action-dims` with `--action-smoothing-alpha`) are written into
 the shipped config.json and the card says they differ from training; `--notes FILE` adds how they were chosen.
 `--checkpoint DIR` re-ships a `pretrained_model` folder (e.g. the shipped one, in place) when the training run
 is not on this machine; `--eval` may be given once per results.json (e.g. Stage and Clean evaluated
@@ -249,6 +250,20 @@ def dims_text(dims: list[int]) -> str:
     return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs)
 
 
+def dims_arg(text: str) -> tuple[int, ...]:
+    """'14-20' or '14,15' or '0-2,5' -> action dims (argparse type; the inverse of `dims_text`)."""
+    dims: list[int] = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.strip().partition("-")
+            dims += range(int(first), int(last or first) + 1)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected dims like 14-20 or 14,15; got {text!r}") from None
+    if not dims:
+        raise argparse.ArgumentTypeError(f"expected at least one dim; got {text!r}")
+    return tuple(dims)
+
+
 def mixed_data_text(data: dict, noise_text: str, pol: dict | None = None) -> str:
     """The card's data sentence for a view joined by `scripts/mix_views.py` (a documented data variant);
     `pol`, the trained policy's config, says whether and where the view's loss weights were used (None: used,
@@ -320,6 +335,10 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
                  f"a new one every {config['n_action_steps']} steps{chunk_note}, each executed action the "
                  f"temporal ensemble (ACT's, coefficient {coeff}; set in the shipped config.json) of the "
                  "overlapping chunks' predictions")
+    if config.get("smoothed_action_dims") and config.get("action_smoothing_alpha", 1.0) != 1.0:
+        alpha = config["action_smoothing_alpha"]
+        execution += (f"; action dims {dims_text(config['smoothed_action_dims'])} low-pass filtered at "
+                      f"inference (a_t = a_(t-1) + {alpha} (u_t - a_(t-1)); set in the shipped config.json)")
     steps, batch = train.get("shipped_step") or train["steps"], train["batch_size"]
     schedule = (f" (a checkpoint of a {train['steps']}-step cosine schedule, i.e. before its end)"
                 if steps != train["steps"] else "")
@@ -550,6 +569,20 @@ def main() -> None:
         "a chunk every --n-action-steps steps; the card says so); default: as trained",
     )
     p.add_argument(
+        "--smoothed-action-dims",
+        type=dims_arg,
+        default=None,
+        help="with --action-smoothing-alpha: action dims (e.g. 14-20, the camera arm, or 14,15) whose "
+        "commands are low-pass filtered at inference, written into the shipped config.json "
+        "(policies/smoothing.py; the card says so); default: as trained",
+    )
+    p.add_argument(
+        "--action-smoothing-alpha",
+        type=float,
+        default=None,
+        help="the low-pass gain in (0, 1] for --smoothed-action-dims (1: off)",
+    )
+    p.add_argument(
         "--all-weights",
         action="store_true",
         help="ship the whole model.safetensors (training copy and EMA) instead of the inference weights",
@@ -574,6 +607,16 @@ def main() -> None:
     # read every input before the first file is written, so that a wrong path leaves --output as it was
     evals = [json.loads(path.read_text()) for path in args.eval]
     notes = args.notes.read_text() if args.notes else ""
+    if (args.smoothed_action_dims is None) != (args.action_smoothing_alpha is None):
+        raise SystemExit("--smoothed-action-dims and --action-smoothing-alpha go together")
+    if args.smoothed_action_dims is not None:
+        from lerobot_bavo.policies.smoothing import check_smoothing
+
+        binary = json.loads((src / "config.json").read_text()).get("binary_action_dims") or ()
+        try:
+            check_smoothing(args.smoothed_action_dims, args.action_smoothing_alpha, tuple(binary))
+        except ValueError as err:
+            raise SystemExit(f"--smoothed-action-dims / --action-smoothing-alpha: {err}") from None
     args.output.mkdir(parents=True, exist_ok=True)
     names = list(FILES) + [
         f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))
@@ -592,6 +635,9 @@ def main() -> None:
             config[key] = value
     if args.temporal_ensemble_coeff is not None:
         config["temporal_ensemble_coeff"] = args.temporal_ensemble_coeff
+    if args.smoothed_action_dims is not None:
+        config["smoothed_action_dims"] = list(args.smoothed_action_dims)
+        config["action_smoothing_alpha"] = args.action_smoothing_alpha
     try:
         check_chunk_execution(config["horizon"], config["n_obs_steps"], config["n_action_steps"],
                               config.get("temporal_ensemble_coeff"))

@@ -127,3 +127,37 @@ def test_temporal_ensembling_is_written_into_the_shipped_config_and_card(tmp_pat
                              text=True, cwd=repo)
     assert refused.returncode != 0
     assert "`n_action_steps` must be < horizon - n_obs_steps + 1 = 15" in refused.stderr
+
+
+def test_action_smoothing_is_written_into_the_shipped_config_and_card(tmp_path):
+    """`--smoothed-action-dims 14-20 --action-smoothing-alpha 0.25` re-ships a checkpoint whose config
+    low-passes the camera arm's commands and whose card says so; a gripper dim, a bad gain or one flag alone
+    is refused before anything is written."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    ship = load_script("scripts/ship_checkpoint.py")
+    assert ship.dims_arg("14-20") == tuple(range(14, 21))
+    assert ship.dims_arg("0-2,5") == (0, 1, 2, 5)
+    repo = Path(__file__).resolve().parents[1]
+    base = [sys.executable, str(repo / "scripts/ship_checkpoint.py"), "--checkpoint",
+            str(repo / "checkpoints/afar_cube_handoff_sf"), "--step", "004000", "--point-frame", "base",
+            "--task", "cube_handoff"]
+    out = tmp_path / "lp"
+    subprocess.run([*base, "--smoothed-action-dims", "14-20", "--action-smoothing-alpha", "0.25",
+                    "--output", str(out)], check=True, capture_output=True, cwd=repo)
+    config = json.loads((out / "config.json").read_text())
+    assert (config["smoothed_action_dims"], config["action_smoothing_alpha"]) == (list(range(14, 21)), 0.25)
+    card = " ".join((out / "README.md").read_text().split())
+    assert "action dims 14-20 low-pass filtered at inference (a_t = a_(t-1) + 0.25" in card
+    for flags, message in ((["--smoothed-action-dims", "13-14", "--action-smoothing-alpha", "0.25"],
+                            "[13] are also `binary_action_dims`"),
+                           (["--smoothed-action-dims", "14", "--action-smoothing-alpha", "2"],
+                            "must be in (0, 1]"),
+                           (["--smoothed-action-dims", "14"], "go together")):
+        refused = subprocess.run([*base, *flags, "--output", str(tmp_path / "no")], capture_output=True,
+                                 text=True, cwd=repo)
+        assert refused.returncode != 0 and message in refused.stderr
+        assert not (tmp_path / "no").exists()

@@ -9,6 +9,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_bavo.features import OBS_ENV_STATE, OBS_POINT_CLOUD, POSE_CHANNELS, TEACHER_PREFIX
 from lerobot_bavo.policies.optim import FusedAdamWConfig
+from lerobot_bavo.policies.smoothing import check_smoothing
 
 # OBS_ENV_STATE: the privileged-state alternative to the point cloud, K object poses (POSE_CHANNELS = 7 each:
 # xyz + wxyz quaternion), one token per object; used by the first rung of the failure ladder
@@ -135,6 +136,13 @@ class ManiFlowConfig(PreTrainedConfig):
             dimensions are snapped after the mean. Why: overlapping chunks are blended instead of cut over.
             Needs `n_action_steps` < horizon - n_obs_steps + 1 (chunks must overlap); cost: one policy call
             per `n_action_steps` steps, as without it.
+        smoothed_action_dims: Action dimensions whose commands are low-pass filtered at inference (default:
+            none): each sent command is a_t = a_{t-1} + action_smoothing_alpha * (u_t - a_{t-1}), u_t the
+            policy's (`policies/smoothing.py`). Why: a joint whose position is in the state (the camera arm's,
+            dims 14-20 on BAVO-Bench) turns step-to-step command jitter into a random walk of what the policy
+            sees. Inference only; gripper (binary) dimensions cannot be smoothed.
+        action_smoothing_alpha: The filter's gain in (0, 1]; 1 (default) sends the policy's commands as they
+            are. Its time constant is about (1 - alpha) / alpha control steps.
         normalization_mapping: FeatureType name -> NormalizationMode. STATE (state and point cloud) and ACTION
             use MIN_MAX (ManiFlow's `limits`); VISUAL is IDENTITY because images are not used.
         push_to_hub: Whether lerobot-train pushes the checkpoint to the Hub. False here (LeRobot's default is
@@ -299,6 +307,8 @@ class ManiFlowConfig(PreTrainedConfig):
     horizon: int = 16
     n_action_steps: int = 8
     temporal_ensemble_coeff: float | None = None
+    smoothed_action_dims: tuple[int, ...] = ()
+    action_smoothing_alpha: float = 1.0
 
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
@@ -420,6 +430,8 @@ class ManiFlowConfig(PreTrainedConfig):
             )
         self.binary_action_levels = levels
         self._check_relative_actions()
+        self.smoothed_action_dims = tuple(int(d) for d in self.smoothed_action_dims)
+        check_smoothing(self.smoothed_action_dims, self.action_smoothing_alpha, self.binary_action_dims or ())
         if not 0.0 <= self.occluder_dropout <= 1.0:
             raise ValueError(
                 f"`occluder_dropout` must be a probability in [0, 1]. Got {self.occluder_dropout}."
@@ -547,6 +559,10 @@ class ManiFlowConfig(PreTrainedConfig):
                     "action; "
                     f"{bad} do not. Set them to the action's gripper dimensions, or [] for none."
                 )
+            check_smoothing(self.smoothed_action_dims, self.action_smoothing_alpha, self.binary_action_dims)
+            if bad := [d for d in self.smoothed_action_dims if d >= action_dim]:
+                raise ValueError(f"`smoothed_action_dims` {list(self.smoothed_action_dims)} must index the "
+                                 f"{action_dim}-dim action; {bad} do not.")
         if self.relative_action_dims:
             action_dim = int(self.output_features[ACTION].shape[0]) if self.output_features else None
             problems = [f"{d} is not an index of the {state_dim}-dim state" for d in self.relative_action_dims

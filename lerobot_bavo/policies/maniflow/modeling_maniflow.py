@@ -34,6 +34,7 @@ from lerobot_bavo.policies.augment import occluder_dropout
 from lerobot_bavo.policies.ensemble import ChunkEnsemble
 from lerobot_bavo.policies.heap import keep_freed_heap
 from lerobot_bavo.policies.relative import as_index, to_absolute, to_relative
+from lerobot_bavo.policies.smoothing import ActionLowPass
 
 from .configuration_maniflow import ManiFlowConfig
 
@@ -626,8 +627,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         return self.model.parameters()
 
     def reset(self):
-        """Clear the observation and action queues (and the stored chunks of temporal ensembling); call on
-        env.reset()."""
+        """Clear the observation and action queues (and the stored chunks of temporal ensembling, and the
+        command low-pass's last action); call on env.reset()."""
         self._queues = {
             self.config.observation_key: deque(maxlen=self.config.n_obs_steps),
             OBS_STATE: deque(maxlen=self.config.n_obs_steps),
@@ -635,6 +636,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         }
         coeff = self.config.temporal_ensemble_coeff
         self._ensemble = None if coeff is None else ChunkEnsemble(coeff, self.config.n_action_steps)
+        self._low_pass = ActionLowPass(self.config.smoothed_action_dims, self.config.action_smoothing_alpha)
 
     def train(self, mode: bool = True):
         super().train(mode)
@@ -787,7 +789,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         """One action (B, A) per call; a new chunk is generated every `n_action_steps` calls. Needs only the
         current `observation.point_cloud` (or object poses) and `observation.state` (teacher keys are never
         read here). With `temporal_ensemble_coeff` set, the action is the ensembled mean of the stored chunks'
-        predictions for this step (`policies/ensemble.py`) and the action queue stays empty."""
+        predictions for this step (`policies/ensemble.py`) and the action queue stays empty. With
+        `smoothed_action_dims` set, those dimensions are low-pass filtered last (`policies/smoothing.py`)."""
         key = self.config.observation_key
         obs = {key: self._points(batch[key]), OBS_STATE: batch[OBS_STATE]}
         for name, unbatched_ndim in ((key, 2), (OBS_STATE, 1)):
@@ -799,11 +802,12 @@ class ManiFlowPolicy(PreTrainedPolicy):
                 chunk = self.generate_actions(self._queued_observations(), noise=noise, generator=generator)
                 self._ensemble.add(chunk[:, self.config.n_obs_steps - 1:])
             action = self._ensemble.pop()
-            return snap_binary_dims(action, self.config.binary_action_dims, self.config.binary_action_levels)
+            levels = self.config.binary_action_levels
+            return self._low_pass(snap_binary_dims(action, self.config.binary_action_dims, levels))
         if len(self._queues[ACTION]) == 0:
             actions = self.predict_action_chunk(obs, noise=noise, generator=generator)
             self._queues[ACTION].extend(actions.transpose(0, 1))
-        return self._queues[ACTION].popleft()
+        return self._low_pass(self._queues[ACTION].popleft())
 
     # ---- Training
     # -------------------------------------------------------------------------------------------
