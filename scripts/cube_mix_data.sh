@@ -4,6 +4,9 @@
 #
 #   bash scripts/cube_mix_data.sh mixsr400sf      # 200 Stage + 200 Random-time (~33 min on the 2-core machine)
 #   bash scripts/cube_mix_data.sh mixs400r200sf   # 400 Stage + 200 Random-time (the first four collections too)
+#   bash scripts/cube_mix_data.sh mixsr400sfcw25  # mixsr400sf's data, every Random-time frame weighing 0.25 in the
+#                                                 # losses (train with --policy.sample_weights=true and the
+#                                                 # camera arm's --policy.loss_weight_dims=[14,...,20])
 #
 # Every source is 100 DART (0.01) demonstrations with 512 self-filtered points: Stage from seeds 0, 300, 700, 850,
 # Random-time from seeds 100, 500 (demonstrations stay below seed 1000: 1000-1039 validate, 2000 and up test).
@@ -17,7 +20,8 @@ T=cube_handoff D=outputs/datasets/bavo_${T}
 case "$name" in
     mixsr400sf) sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
     mixs400r200sf) sources="dartsf512 dartsf512b dartsf512c dartsf512d dartsf512_random dartsf512_randomb" ;;
-    *) echo "cube_mix_data: no variant named '$name' (mixsr400sf or mixs400r200sf)" >&2; exit 2 ;;
+    mixsr400sfcw25) sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
+    *) echo "cube_mix_data: no variant named '$name' (mixsr400sf, mixs400r200sf or mixsr400sfcw25)" >&2; exit 2 ;;
 esac
 collection() {  # source name -> "condition first-seed"
     case "$1" in
@@ -25,7 +29,9 @@ collection() {  # source name -> "condition first-seed"
         dartsf512d) echo "stage 850" ;; dartsf512_random) echo "random 100" ;; dartsf512_randomb) echo "random 500" ;;
     esac
 }
-args=()
+args=() weigh=()
+random_weight=""  # a ROOT:EPISODES:WEIGHT suffix for the Random-time sources (scripts/mix_views.py --weigh all)
+[ "$name" = mixsr400sfcw25 ] && random_weight=:0.25 weigh=(--weigh all)
 for s in $sources; do
     read -r condition seed <<<"$(collection "$s")"
     if [ ! -f "${D}_$s.collected" ]; then
@@ -34,12 +40,13 @@ for s in $sources; do
         touch "${D}_$s.collected"
     fi
     [ -d "${D}_${s}_points" ] || python -m lerobot_bavo.datasets.views --root "${D}_$s" --view points
-    args+=(--source "${D}_${s}_points:100")
+    w=""; [ "$condition" = random ] && w=$random_weight
+    args+=(--source "${D}_${s}_points:100$w")
 done
 out=${D}_${name}_points
 if [ ! -f "$out.joined" ]; then
     rm -rf "$out"
-    python scripts/mix_views.py --output "$out" "${args[@]}"
+    python scripts/mix_views.py --output "$out" "${weigh[@]}" "${args[@]}"
     touch "$out.joined"
 fi
 echo "[cube_mix_data] $out ready"
