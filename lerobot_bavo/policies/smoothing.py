@@ -9,7 +9,9 @@ policy's command, keeps slow motion and removes most of the step-to-step jitter:
 sqrt(alpha / (2 - alpha)) of its standard deviation, and the filter's time constant is about
 (1 - alpha) / alpha control steps. It reads only the policy's own commands (nothing privileged) and is applied
 to the normalised actions, which equals filtering the joint commands because MIN_MAX normalisation is affine
-per dimension. The filter restarts with each episode; its first command passes through.
+per dimension. The filter restarts with each episode; its first command passes through. It also slows the
+motions a policy needs to be quick (a view recovery): what it did on Cube Handoff is in
+docs/results/learning_rate.md.
 """
 
 from __future__ import annotations
