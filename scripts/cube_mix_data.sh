@@ -33,7 +33,7 @@ collection() {  # source name -> "condition first-seed"
     esac
 }
 args=() weigh=()
-random_weight=""  # a ROOT:EPISODES:WEIGHT suffix for the Random-time sources (scripts/mix_views.py --weigh all)
+random_weight=""  # a ROOT:EPISODES:WEIGHT suffix for the Random-time sources (with its scripts/mix_views.py --weigh)
 [ "$name" = mixsr400sfcw25 ] && random_weight=:0.25 weigh=(--weigh all)
 [ "$name" = mixsr400sfrw25 ] && random_weight=:0.25 weigh=(--weigh recovery)
 for s in $sources; do
