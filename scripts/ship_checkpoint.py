@@ -507,6 +507,40 @@ weights, so fine-tuning with `--policy.path` still works{weights_text}
 """
 
 
+def shipped_config(config: dict, args: argparse.Namespace) -> dict:
+    """The training config with the inference settings of the command line written in, checked before any
+    file is written (SystemExit naming the flag otherwise): a bad flag leaves --output as it was."""
+    config = dict(config)
+    if (args.smoothed_action_dims is None) != (args.action_smoothing_alpha is None):
+        raise SystemExit("--smoothed-action-dims and --action-smoothing-alpha go together")
+    for key, value in (
+        ("num_inference_steps", args.num_inference_steps),
+        ("n_action_steps", args.n_action_steps),
+    ):
+        if value is not None:
+            if value < 1:
+                raise SystemExit(f"--{key.replace('_', '-')} must be >= 1")
+            config[key] = value
+    if args.temporal_ensemble_coeff is not None:
+        config["temporal_ensemble_coeff"] = args.temporal_ensemble_coeff
+    if args.smoothed_action_dims is not None:
+        from lerobot_bavo.policies.smoothing import check_smoothing
+
+        try:
+            check_smoothing(args.smoothed_action_dims, args.action_smoothing_alpha,
+                            tuple(config.get("binary_action_dims") or ()))
+        except ValueError as err:
+            raise SystemExit(f"--smoothed-action-dims / --action-smoothing-alpha: {err}") from None
+        config["smoothed_action_dims"] = list(args.smoothed_action_dims)
+        config["action_smoothing_alpha"] = args.action_smoothing_alpha
+    try:
+        check_chunk_execution(config["horizon"], config["n_obs_steps"], config["n_action_steps"],
+                              config.get("temporal_ensemble_coeff"))
+    except ValueError as err:
+        raise SystemExit(f"--n-action-steps / --temporal-ensemble-coeff: {err}") from None
+    return config
+
+
 def main() -> None:
     from lerobot_bavo.features import POINT_FRAMES
 
@@ -607,16 +641,13 @@ def main() -> None:
     # read every input before the first file is written, so that a wrong path leaves --output as it was
     evals = [json.loads(path.read_text()) for path in args.eval]
     notes = args.notes.read_text() if args.notes else ""
-    if (args.smoothed_action_dims is None) != (args.action_smoothing_alpha is None):
-        raise SystemExit("--smoothed-action-dims and --action-smoothing-alpha go together")
-    if args.smoothed_action_dims is not None:
-        from lerobot_bavo.policies.smoothing import check_smoothing
+    config = shipped_config(json.loads((src / "config.json").read_text()), args)
+    from lerobot_bavo.checkpoints import recorded_cloud_settings, write_inputs_record
 
-        binary = json.loads((src / "config.json").read_text()).get("binary_action_dims") or ()
-        try:
-            check_smoothing(args.smoothed_action_dims, args.action_smoothing_alpha, tuple(binary))
-        except ValueError as err:
-            raise SystemExit(f"--smoothed-action-dims / --action-smoothing-alpha: {err}") from None
+    cloud = recorded_cloud_settings(src) or {}
+    frame = args.point_frame or cloud.get("point_frame")
+    if frame is None:
+        raise SystemExit(f"the training data of {src} is not on this machine; pass --point-frame base|camera")
     args.output.mkdir(parents=True, exist_ok=True)
     names = list(FILES) + [
         f.name for f in src.iterdir() if f.name.startswith(("policy_preprocessor", "policy_postprocessor"))
@@ -624,25 +655,6 @@ def main() -> None:
     for name in names:
         if (src / name).resolve() != (args.output / name).resolve():
             shutil.copy2(src / name, args.output / name)
-    config = json.loads((args.output / "config.json").read_text())
-    for key, value in (
-        ("num_inference_steps", args.num_inference_steps),
-        ("n_action_steps", args.n_action_steps),
-    ):
-        if value is not None:
-            if value < 1:
-                raise SystemExit(f"--{key.replace('_', '-')} must be >= 1")
-            config[key] = value
-    if args.temporal_ensemble_coeff is not None:
-        config["temporal_ensemble_coeff"] = args.temporal_ensemble_coeff
-    if args.smoothed_action_dims is not None:
-        config["smoothed_action_dims"] = list(args.smoothed_action_dims)
-        config["action_smoothing_alpha"] = args.action_smoothing_alpha
-    try:
-        check_chunk_execution(config["horizon"], config["n_obs_steps"], config["n_action_steps"],
-                              config.get("temporal_ensemble_coeff"))
-    except ValueError as err:
-        raise SystemExit(f"--n-action-steps / --temporal-ensemble-coeff: {err}") from None
     (args.output / "config.json").write_text(json.dumps(config, indent=4) + "\n")
     if not args.all_weights:
         kept, dropped = keep_inference_weights(args.output / "model.safetensors", config)
@@ -653,12 +665,6 @@ def main() -> None:
     if args.trim_stats:
         kept, dropped = keep_inference_statistics(args.output)
         print(f"processor statistics: kept the {kept} read at inference, dropped {dropped}")
-    from lerobot_bavo.checkpoints import recorded_cloud_settings, write_inputs_record
-
-    cloud = recorded_cloud_settings(src) or {}
-    frame = args.point_frame or cloud.get("point_frame")
-    if frame is None:
-        raise SystemExit(f"the training data of {src} is not on this machine; pass --point-frame base|camera")
     names.append(write_inputs_record(args.output, frame, cloud.get("self_filter", False)).name)
     total = sum((args.output / n).stat().st_size for n in names)
     if total > MAX_BYTES:

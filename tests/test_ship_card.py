@@ -104,8 +104,9 @@ def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
 
 def test_temporal_ensembling_is_written_into_the_shipped_config_and_card(tmp_path):
     """`--temporal-ensemble-coeff` with `--n-action-steps` re-ships a checkpoint whose config turns ACT's
-    ensembling on and whose card says so; chunks that would not overlap are refused. `--task` names the task
-    for the card, as on a fresh clone (no training data, no evaluation)."""
+    ensembling on and whose card says so; chunks that would not overlap, or none executed, are refused
+    before anything is written. `--task` names the task for the card, as on a fresh clone (no training data,
+    no evaluation)."""
     import json
     import subprocess
     import sys
@@ -127,6 +128,10 @@ def test_temporal_ensembling_is_written_into_the_shipped_config_and_card(tmp_pat
                              text=True, cwd=repo)
     assert refused.returncode != 0
     assert "`n_action_steps` must be < horizon - n_obs_steps + 1 = 15" in refused.stderr
+    zero = subprocess.run([*base, "--n-action-steps", "0", "--output", str(tmp_path / "zero")],
+                          capture_output=True, text=True, cwd=repo)
+    assert zero.returncode != 0 and "--n-action-steps must be >= 1" in zero.stderr
+    assert not (tmp_path / "no").exists() and not (tmp_path / "zero").exists()  # refused before any write
 
 
 def test_action_smoothing_is_written_into_the_shipped_config_and_card(tmp_path):
