@@ -9,6 +9,9 @@
 #                                                 # camera arm's --policy.loss_weight_dims=[14,...,20])
 #   bash scripts/cube_mix_data.sh mixsr400sfrw25  # mixsr400sf's data, the Random-time recovery frames weighing 0.25
 #                                                 # (train with --policy.sample_weights=true)
+#   bash scripts/cube_mix_data.sh mixsr400sfco25  # mixsr400sf's data, the Random-time frames outside the view
+#                                                 # recoveries weighing 0.25 (train with --policy.sample_weights=true
+#                                                 # and the camera arm's --policy.loss_weight_dims=[14,...,20])
 #
 # Every source is 100 DART (0.01) demonstrations with 512 self-filtered points: Stage from seeds 0, 300, 700, 850,
 # Random-time from seeds 100, 500 (demonstrations stay below seed 1000: 1000-1039 validate, 2000 and up test).
@@ -17,14 +20,15 @@
 # without one is an interrupted join and is built again). Run it again after a stop.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-name=${1:?usage: cube_mix_data.sh mixsr400sf|mixs400r200sf}
+name=${1:?usage: cube_mix_data.sh mixsr400sf|mixs400r200sf|mixsr400sfcw25|mixsr400sfrw25|mixsr400sfco25}
 T=cube_handoff D=outputs/datasets/bavo_${T}
 case "$name" in
     mixsr400sf) sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
     mixs400r200sf) sources="dartsf512 dartsf512b dartsf512c dartsf512d dartsf512_random dartsf512_randomb" ;;
-    mixsr400sfcw25|mixsr400sfrw25) sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
-    *) echo "cube_mix_data: no variant named '$name' (mixsr400sf, mixs400r200sf, mixsr400sfcw25 or" \
-            "mixsr400sfrw25)" >&2; exit 2 ;;
+    mixsr400sfcw25|mixsr400sfrw25|mixsr400sfco25)
+        sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
+    *) echo "cube_mix_data: no variant named '$name' (mixsr400sf, mixs400r200sf, mixsr400sfcw25," \
+            "mixsr400sfrw25 or mixsr400sfco25)" >&2; exit 2 ;;
 esac
 collection() {  # source name -> "condition first-seed"
     case "$1" in
@@ -36,6 +40,7 @@ args=() weigh=()
 random_weight=""  # a ROOT:EPISODES:WEIGHT suffix for the Random-time sources (with its scripts/mix_views.py --weigh)
 [ "$name" = mixsr400sfcw25 ] && random_weight=:0.25 weigh=(--weigh all)
 [ "$name" = mixsr400sfrw25 ] && random_weight=:0.25 weigh=(--weigh recovery)
+[ "$name" = mixsr400sfco25 ] && random_weight=:0.25 weigh=(--weigh outside-recovery)
 for s in $sources; do
     read -r condition seed <<<"$(collection "$s")"
     if [ ! -f "${D}_$s.collected" ]; then
