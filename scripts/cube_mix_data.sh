@@ -22,11 +22,14 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 name=${1:?usage: cube_mix_data.sh mixsr400sf|mixs400r200sf|mixsr400sfcw25|mixsr400sfrw25|mixsr400sfco25}
 T=cube_handoff D=outputs/datasets/bavo_${T}
+sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb"  # 200 Stage + 200 Random-time
+random_weight="" weigh=()  # a ROOT:EPISODES:WEIGHT suffix for the Random-time sources, its mix_views.py --weigh
 case "$name" in
-    mixsr400sf) sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
+    mixsr400sf) ;;
     mixs400r200sf) sources="dartsf512 dartsf512b dartsf512c dartsf512d dartsf512_random dartsf512_randomb" ;;
-    mixsr400sfcw25|mixsr400sfrw25|mixsr400sfco25)
-        sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb" ;;
+    mixsr400sfcw25) random_weight=:0.25 weigh=(--weigh all) ;;
+    mixsr400sfrw25) random_weight=:0.25 weigh=(--weigh recovery) ;;
+    mixsr400sfco25) random_weight=:0.25 weigh=(--weigh outside-recovery) ;;
     *) echo "cube_mix_data: no variant named '$name' (mixsr400sf, mixs400r200sf, mixsr400sfcw25," \
             "mixsr400sfrw25 or mixsr400sfco25)" >&2; exit 2 ;;
 esac
@@ -36,11 +39,7 @@ collection() {  # source name -> "condition first-seed"
         dartsf512d) echo "stage 850" ;; dartsf512_random) echo "random 100" ;; dartsf512_randomb) echo "random 500" ;;
     esac
 }
-args=() weigh=()
-random_weight=""  # a ROOT:EPISODES:WEIGHT suffix for the Random-time sources (with its scripts/mix_views.py --weigh)
-[ "$name" = mixsr400sfcw25 ] && random_weight=:0.25 weigh=(--weigh all)
-[ "$name" = mixsr400sfrw25 ] && random_weight=:0.25 weigh=(--weigh recovery)
-[ "$name" = mixsr400sfco25 ] && random_weight=:0.25 weigh=(--weigh outside-recovery)
+args=()
 for s in $sources; do
     read -r condition seed <<<"$(collection "$s")"
     if [ ! -f "${D}_$s.collected" ]; then
