@@ -636,12 +636,14 @@ def main() -> None:
     )
     args = p.parse_args()
     src = args.checkpoint if args.checkpoint else args.run / "checkpoints" / args.step / "pretrained_model"
-    if not (src / "config.json").is_file():
-        raise SystemExit(f"no checkpoint at {src}")
+    for name in ("config.json", "train_config.json"):
+        if not (src / name).is_file():
+            raise SystemExit(f"no checkpoint at {src}: {name} is missing")
     # read every input before the first file is written, so that a wrong path leaves --output as it was
     evals = [json.loads(path.read_text()) for path in args.eval]
     notes = args.notes.read_text() if args.notes else ""
     config = shipped_config(json.loads((src / "config.json").read_text()), args)
+    train = json.loads((src / "train_config.json").read_text())
     from lerobot_bavo.checkpoints import recorded_cloud_settings, write_inputs_record
 
     cloud = recorded_cloud_settings(src) or {}
@@ -669,7 +671,6 @@ def main() -> None:
     total = sum((args.output / n).stat().st_size for n in names)
     if total > MAX_BYTES:
         raise SystemExit(f"{args.output} is {total / 1e6:.1f} MB > {MAX_BYTES / 1e6:.0f} MB")
-    train = json.loads((src / "train_config.json").read_text())
     if args.step.isdigit():
         train["shipped_step"] = int(args.step)
     wall_min = args.wall_min

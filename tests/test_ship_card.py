@@ -166,3 +166,23 @@ def test_action_smoothing_is_written_into_the_shipped_config_and_card(tmp_path):
                                  text=True, cwd=repo)
         assert refused.returncode != 0 and message in refused.stderr
         assert not (tmp_path / "no").exists()
+
+
+def test_a_checkpoint_without_its_training_config_is_refused_before_any_write(tmp_path):
+    """The card is written from `train_config.json`; a folder without it (a hand-copied `pretrained_model`)
+    is refused with the missing file's name, and `--output` is not created."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    src = tmp_path / "copied"
+    shutil.copytree(repo / "checkpoints/afar_cube_handoff_sf", src)
+    (src / "train_config.json").unlink()
+    command = [sys.executable, str(repo / "scripts/ship_checkpoint.py"), "--checkpoint", str(src), "--step",
+               "004000", "--point-frame", "base", "--task", "cube_handoff", "--output", str(tmp_path / "out")]
+    refused = subprocess.run(command, capture_output=True, text=True, cwd=repo)
+    assert refused.returncode != 0
+    assert "train_config.json is missing" in refused.stderr
+    assert not (tmp_path / "out").exists()
