@@ -3,7 +3,7 @@
 # 1e-3, on 80 more validation seeds (docs/results/learning_rate.md, "Plan: one variant chosen on 120 validation
 # seeds"). Each candidate (training seed 1000, shipped under checkpoints/) runs Stage on seeds 1040-1119; the
 # script then prints each one's Stage successes over those 80 episodes and over all 120 validation episodes
-# (1000-1119, with its committed or local 1000-1039 log). No test seed takes part.
+# (1000-1119, with its 1000-1039 log committed under docs/results/learning_rate/). No test seed takes part.
 #
 #   bash scripts/cube_variant_choice.sh            # ~3-4 min per candidate alone on the 2-core machine
 #
@@ -32,8 +32,8 @@ def stage_successes(path, seeds):
 print("| candidate (seed 1000) | Stage, seeds 1000-1039 | Stage, seeds 1040-1119 | Stage, all 120 |")
 print("|---|---|---|---|")
 for c in sys.argv[1:]:
-    name = f"afar_cube_handoff_{c}_b2x_lr1e3"
-    first = stage_successes(f"docs/results/learning_rate/cube_handoff_afar_{c}_b2x_lr1e3_val.jsonl.gz", set(range(1000, 1040)))
-    more = stage_successes(f"outputs/eval/val2_{name}/episodes.jsonl", set(range(1040, 1120)))
+    first = stage_successes(f"docs/results/learning_rate/cube_handoff_afar_{c}_b2x_lr1e3_val.jsonl.gz",
+                            set(range(1000, 1040)))
+    more = stage_successes(f"outputs/eval/val2_afar_cube_handoff_{c}_b2x_lr1e3/episodes.jsonl", set(range(1040, 1120)))
     print(f"| {c} | {first} / 40 | {more} / 80 | {first + more} / 120 ({100 * (first + more) / 120:.1f} %) |")
 PY
