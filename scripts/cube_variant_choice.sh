@@ -18,13 +18,13 @@ for c in $candidates; do
         --output-dir "outputs/eval/val2_afar_cube_handoff_${c}_b2x_lr1e3"
 done
 python - $candidates <<'PY'
-import gzip, json, sys
+import sys
+from pathlib import Path
+
+from lerobot_bavo.eval.run import read_episode_records
 
 def stage_successes(path, seeds):
-    opener = gzip.open if path.endswith(".gz") else open
-    with opener(path, "rt") as f:
-        rows = [json.loads(line) for line in f if line.strip()]
-    rows = [r for r in rows if r["condition"] == "stage" and r["seed"] in seeds]
+    rows = [r for r in read_episode_records(Path(path)) if r["condition"] == "stage" and r["seed"] in seeds]
     if len(rows) != len(seeds):
         sys.exit(f"{path}: {len(rows)} Stage episodes on seeds {min(seeds)}-{max(seeds)}, expected {len(seeds)}")
     return sum(bool(r["success"]) for r in rows)
