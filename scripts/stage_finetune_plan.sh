@@ -93,7 +93,8 @@ print(f"[stage_finetune] step {int(step)}: Stage {total} / 120 validation episod
 PY
         ;;
     test)
-        step=$(printf %06d "${STEP:?set STEP to the chosen step (500, 1000 or 1500)}")
+        step=${STEP:?set STEP to the chosen step (500, 1000 or 1500)}
+        case "$step" in 500|1000|1500) ;; *) echo "STEP: 500, 1000 or 1500, not '$step'" >&2; exit 2 ;; esac
         for seed in ${SEEDS:-1000}; do
             finetune "$seed"
             S=$(suffix "$seed")
