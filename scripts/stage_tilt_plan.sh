@@ -6,7 +6,10 @@
 # test, card, validation beside the 200 + 200 variant). Run again after a stop: finished steps are skipped.
 #
 #   SEEDS=1000 bash scripts/stage_tilt_plan.sh
+#   METHOD=maniflow SEEDS=1000 bash scripts/stage_tilt_plan.sh   # ManiFlow's same runs (its grid method and card notes)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-DATA=mixs400r200sf GRID_METHOD=afar-self-filter-stage400+random200-2x-lr1e-3 \
-    NOTES=docs/results/learning_rate/card_notes_afar_cube_mix600_b2x.md exec bash scripts/cube_variant_plan.sh
+METHOD=${METHOD:-afar}
+export METHOD
+DATA=mixs400r200sf GRID_METHOD=$METHOD-self-filter-stage400+random200-2x-lr1e-3 \
+    NOTES=docs/results/learning_rate/card_notes_${METHOD}_cube_mix600_b2x.md exec bash scripts/cube_variant_plan.sh
