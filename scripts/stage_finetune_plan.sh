@@ -5,7 +5,8 @@
 # normalisation statistics), with a fresh AdamW and schedule (peak lr 1e-4, 100 warm-up steps, cosine to 0 at
 # step 1,500, batch 128: 192 K samples, checkpoints every 500 steps, two torch threads), on the Stage episodes
 # 0-399 of the same training view (`--dataset.episodes`; the view's statistics, so normalisation is unchanged).
-# No new demonstration.
+# No new demonstration. METHOD=maniflow runs ManiFlow's same steps from its own 400 + 200 checkpoints (validation
+# logs under outputs/eval/val_ftstage_maniflow_*, shipped as checkpoints/maniflow_..._ftstage[_s<seed>]).
 #
 #   bash scripts/stage_finetune_plan.sh choose        # seed 1000: fine-tune, validate steps 500 / 1000 / 1500 on
 #                                                     # seeds 1000-1039 (all conditions), the chosen one on Stage
@@ -23,21 +24,25 @@ cd "$(dirname "$0")/.."
 export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
 BIN="${BIN-.venv/bin/}"
 T=cube_handoff DATA=mixs400r200sf TAG=_ftstage
-GRID_METHOD=afar-self-filter-stage400+random200-2x-lr1e-3-stage-finetune
-NOTES=docs/results/learning_rate/card_notes_afar_cube_mix600_ftstage.md
+METHOD=${METHOD:-afar}
+case "$METHOD" in afar|maniflow) ;; *) echo "stage_finetune_plan: METHOD is afar or maniflow, not '$METHOD'" >&2; exit 2 ;; esac
+GRID_METHOD=$METHOD-self-filter-stage400+random200-2x-lr1e-3-stage-finetune
+NOTES=docs/results/learning_rate/card_notes_${METHOD}_cube_mix600_ftstage.md
+V=val_ftstage$([ "$METHOD" = afar ] || echo "_$METHOD")  # the validation logs' prefix (A-FAR's came first)
+export V
 # the view's Stage episodes: scripts/mix_views.py keeps its sources' order, and cube_mix_data.sh gives the four
 # Stage collections first (the view's bavo_collection.json, `mixed_from`, lists them)
 stage_episodes="[$(seq -s, 0 399)]"
 
 suffix() { [ "$1" = 1000 ] && echo "" || echo "_s$1"; }
-run_of() { echo "${T}_afar${TAG}_${DATA}_s$1"; }
+run_of() { echo "${T}_${METHOD}${TAG}_${DATA}_s$1"; }
 
 finetune() {  # finetune SEED: the 1,500-step fine-tune of that seed's shipped checkpoint (skipped when saved)
     local seed=$1
     [ -d "outputs/train/$(run_of "$seed")/checkpoints/001500" ] && return
-    FROM="checkpoints/afar_${T}_${DATA}_b2x_lr1e3$(suffix "$seed")" SEED=$seed DATA=$DATA TASK=$T STEPS=1500 \
+    FROM="checkpoints/${METHOD}_${T}_${DATA}_b2x_lr1e3$(suffix "$seed")" SEED=$seed DATA=$DATA TASK=$T STEPS=1500 \
         BATCH=128 LR=1e-4 WARMUP=100 SAVE_FREQ=500 THREADS=2 TAG=$TAG BIN=$BIN \
-        bash scripts/train_task.sh afar --dataset.episodes="$stage_episodes"
+        bash scripts/train_task.sh "$METHOD" --dataset.episodes="$stage_episodes"
 }
 
 evaluate() {  # evaluate POLICY OUTPUT_DIR CONDITIONS EPISODES FIRST_SEED
@@ -50,18 +55,19 @@ case "${1:-}" in
         finetune 1000
         for step in 000500 001000 001500; do
             evaluate "outputs/train/$(run_of 1000)/checkpoints/$step/pretrained_model" \
-                "outputs/eval/val_ftstage_s1000_$step" clean,stage,random 40 1000
+                "outputs/eval/${V}_s1000_$step" clean,stage,random 40 1000
         done
         # the rule fixed in the plan: Random-time >= 10 and Clean >= 20 of 40; then the most Stage successes,
         # a tie to the earlier step
         chosen=$("${BIN}python" - <<'PY'
+import os
 from pathlib import Path
 
 from lerobot_bavo.eval.run import read_episode_records
 
 best = None
 for step in ("000500", "001000", "001500"):
-    rows = read_episode_records(Path(f"outputs/eval/val_ftstage_s1000_{step}/episodes.jsonl"))
+    rows = read_episode_records(Path(f"outputs/eval/{os.environ['V']}_s1000_{step}/episodes.jsonl"))
     n = {c: sum(bool(r["success"]) for r in rows if r["condition"] == c) for c in ("clean", "stage", "random")}
     eligible = n["random"] >= 10 and n["clean"] >= 20
     print(f"| step {int(step)} | {n['clean']} / 40 | {n['stage']} / 40 | {n['random']} / 40 | "
@@ -74,22 +80,23 @@ PY
         echo "[stage_finetune] chosen step: $chosen"
         [ "$chosen" = none ] && { echo "[stage_finetune] no step passes Random-time >= 10 and Clean >= 20"; exit 0; }
         evaluate "outputs/train/$(run_of 1000)/checkpoints/$chosen/pretrained_model" \
-            "outputs/eval/val2_ftstage_s1000_$chosen" stage 80 1040
+            "outputs/eval/${V/val/val2}_s1000_$chosen" stage 80 1040
         "${BIN}python" - "$chosen" <<'PY'
+import os
 import sys
 from pathlib import Path
 
 from lerobot_bavo.eval.run import read_episode_records
 
-step = sys.argv[1]
-first = [r for r in read_episode_records(Path(f"outputs/eval/val_ftstage_s1000_{step}/episodes.jsonl"))
+step, v = sys.argv[1], os.environ["V"]
+first = [r for r in read_episode_records(Path(f"outputs/eval/{v}_s1000_{step}/episodes.jsonl"))
          if r["condition"] == "stage"]
-more = read_episode_records(Path(f"outputs/eval/val2_ftstage_s1000_{step}/episodes.jsonl"))
+more = read_episode_records(Path(f"outputs/eval/{v.replace('val', 'val2', 1)}_s1000_{step}/episodes.jsonl"))
 if len(first) != 40 or len(more) != 80:
     sys.exit(f"expected 40 + 80 Stage episodes, found {len(first)} + {len(more)}")
 total = sum(bool(r["success"]) for r in first + more)
-print(f"[stage_finetune] step {int(step)}: Stage {total} / 120 validation episodes (gate: >= 78; "
-      f"the 400 + 200 variant's seed 1000: 71) -> {'passed' if total >= 78 else 'not passed'}")
+print(f"[stage_finetune] step {int(step)}: Stage {total} / 120 validation episodes (gate: >= 78) -> "
+      f"{'passed' if total >= 78 else 'not passed'}")
 PY
         ;;
     test)
@@ -99,7 +106,7 @@ PY
             finetune "$seed"
             S=$(suffix "$seed")
             TASK=$T NOTES=$NOTES BIN=$BIN bash scripts/train_task.sh ship-test "$(run_of "$seed")" "$step" \
-                "checkpoints/afar_${T}_${DATA}_b2x_lr1e3_ftstage$S" "outputs/eval/grid_table/runs/$GRID_METHOD/s$seed/$T"
+                "checkpoints/${METHOD}_${T}_${DATA}_b2x_lr1e3_ftstage$S" "outputs/eval/grid_table/runs/$GRID_METHOD/s$seed/$T"
         done ;;
     *)
         sed -n 2,20p "$0"; exit 2 ;;
