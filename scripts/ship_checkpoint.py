@@ -299,6 +299,28 @@ SIZE_FIELDS = ("point_encoder_hidden_dims", "point_feature_dim", "state_feature_
                "wqf_hidden_dim", "wqf_num_heads", "wqf_ffn_ratio")
 
 
+def episodes_text(episodes: list[int]) -> str:
+    """A `--dataset.episodes` value as written on a card, ready to paste into a shell: one run of consecutive
+    indices as `"[$(seq -s, first last)]"` (a fine-tune on 400 of a view's episodes would otherwise print 400
+    numbers), any other list as it is."""
+    ordered = sorted(episodes)
+    if len(ordered) > 2 and ordered == list(range(ordered[0], ordered[-1] + 1)):
+        return f'"[$(seq -s, {ordered[0]} {ordered[-1]})]"'
+    return "[" + ",".join(map(str, ordered)) + "]"
+
+
+def start_flags(train: dict) -> tuple[str, str]:
+    """The card's `lerobot-train` flags for where the weights start and which episodes train: a fine-tune
+    (`--policy.path`, lerobot-train's `pretrained_path`) starts from another checkpoint's weights, EMA and
+    processors, so the card names that checkpoint instead of a policy type and size preset, and a run on
+    part of a view (`--dataset.episodes`) says which part. Returns (start, episodes), each '' when absent."""
+    pol, ds = train["policy"], train["dataset"]
+    start = (f"--policy.path={pol['pretrained_path']}" if pol.get("pretrained_path") else
+             f"--policy.type={pol['type']} --policy.preset={pol['preset']}")
+    episodes = f" --dataset.episodes={episodes_text(ds['episodes'])}" if ds.get("episodes") else ""
+    return start, episodes
+
+
 def size_flags(pol: dict) -> list[str]:
     """`--policy.<field>=<value>` for each architecture field of the trained config that differs from its
     preset's value (e.g. `--policy.dit_mlp_ratio=3.5`), so that the card's command rebuilds the same model."""
@@ -405,7 +427,11 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
             "simulator-exact teacher), then its `points` view (`python -m lerobot_bavo.datasets.views "
             "--view points`)."
         )
-    epochs = f"{steps * batch / frames:.1f} epochs; " if frames else ""
+    # a run on part of a view (`--dataset.episodes`) has no epoch count from the view's frames
+    epochs = f"{steps * batch / frames:.1f} epochs; " if frames and not ds.get("episodes") else ""
+    start, episodes = start_flags(train)
+    after = (f", on top of the training of `{pol['pretrained_path']}` (its own card)"
+             if pol.get("pretrained_path") else "")
     extra = size_flags(pol) + [
         f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
     if pol.get("occluder_dropout"):  # the training recipe against the Stage occluder's position cue
@@ -478,11 +504,11 @@ steps{steps_note}, the gripper commands (action dims {list(binary)}) {snap_text}
 {data_text}
 
 ## Training
-`lerobot-train --policy.type={pol['type']} --policy.preset={pol['preset']} {' '.join(extra)}
---dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')} --batch_size={batch}
+`lerobot-train {start} {' '.join(extra)}
+--dataset.repo_id={ds['repo_id']} --dataset.root={ds.get('root')}{episodes} --batch_size={batch}
 --steps={train['steps']} --seed={train['seed']} --num_workers=0` ({how})
-Budget: {steps} steps x batch {batch} = {steps * batch:,} samples{schedule} ({epochs}the paper: 100K x 64 =
-6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine
+Budget: {steps} steps x batch {batch} = {steps * batch:,} samples{schedule}{after}
+({epochs}the paper: 100K x 64 = 6.4 M), {wall}. AdamW lr {pol['optimizer_lr']}, cosine
 schedule with {pol['scheduler_warmup_steps']} warm-up steps, EMA weights for inference.
 
 ## Results (bavo-eval; the demonstrations used seeds below 1000)

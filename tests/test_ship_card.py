@@ -186,3 +186,18 @@ def test_a_checkpoint_without_its_training_config_is_refused_before_any_write(tm
     assert refused.returncode != 0
     assert "train_config.json is missing" in refused.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_a_fine_tune_card_names_its_start_and_its_episodes():
+    """A fine-tune's card command starts from the checkpoint it was fine-tuned from (`--policy.path`), not
+    from a policy type and preset it never trained from scratch, and names the episodes it read, with a run of
+    consecutive indices written as a `seq` a shell expands (hand-written cases)."""
+    ship = load_script("scripts/ship_checkpoint.py")
+    assert ship.episodes_text(list(range(400))) == '"[$(seq -s, 0 399)]"'
+    assert ship.episodes_text([7, 0, 1, 2, 5, 6]) == "[0,1,2,5,6,7]"
+    assert ship.episodes_text([3, 9]) == "[3,9]"
+    scratch = {"policy": {"type": "afar", "preset": "cpu_fast"}, "dataset": {"repo_id": "x"}}
+    assert ship.start_flags(scratch) == ("--policy.type=afar --policy.preset=cpu_fast", "")
+    fine = {"policy": {"type": "afar", "preset": "cpu_fast", "pretrained_path": "checkpoints/a"},
+            "dataset": {"repo_id": "x", "episodes": list(range(10))}}
+    assert ship.start_flags(fine) == ("--policy.path=checkpoints/a", ' --dataset.episodes="[$(seq -s, 0 9)]"')
