@@ -61,6 +61,7 @@ case "${1:-}" in
         # a tie to the earlier step
         chosen=$("${BIN}python" - <<'PY'
 import os
+import sys
 from pathlib import Path
 
 from lerobot_bavo.eval.run import read_episode_records
@@ -71,7 +72,7 @@ for step in ("000500", "001000", "001500"):
     n = {c: sum(bool(r["success"]) for r in rows if r["condition"] == c) for c in ("clean", "stage", "random")}
     eligible = n["random"] >= 10 and n["clean"] >= 20
     print(f"| step {int(step)} | {n['clean']} / 40 | {n['stage']} / 40 | {n['random']} / 40 | "
-          f"{'yes' if eligible else 'no'} |", file=__import__("sys").stderr)
+          f"{'yes' if eligible else 'no'} |", file=sys.stderr)
     if eligible and (best is None or n["stage"] > best[1]):
         best = (step, n["stage"])
 print(best[0] if best else "none")
