@@ -293,10 +293,12 @@ def card_task(data: dict | None, evals: list[dict], task: str | None = None) -> 
     return tasks.pop()
 
 
-# Architecture fields a size preset fills or a `--policy.*` flag may change (the card names those that differ)
-SIZE_FIELDS = ("point_encoder_hidden_dims", "point_feature_dim", "state_feature_dim", "dit_hidden_dim",
-               "dit_num_layers", "dit_num_heads", "dit_mlp_ratio", "time_freq_dim", "time_embed_hidden_dim",
-               "wqf_hidden_dim", "wqf_num_heads", "wqf_ffn_ratio")
+# Fields a size preset fills or a `--policy.*` flag may change (the card names those that differ): the model's
+# sizes, and A-FAR's relation anchors and fusion-gate learning-rate multiplier (AFAR_PRESETS)
+PRESET_FIELDS = ("point_encoder_hidden_dims", "point_feature_dim", "state_feature_dim", "dit_hidden_dim",
+                 "dit_num_layers", "dit_num_heads", "dit_mlp_ratio", "time_freq_dim", "time_embed_hidden_dim",
+                 "wqf_hidden_dim", "wqf_num_blocks", "wqf_num_heads", "wqf_ffn_ratio", "relation_num_points",
+                 "fusion_gate_lr_scale")
 
 
 def episodes_text(episodes: list[int]) -> str:
@@ -321,16 +323,17 @@ def start_flags(train: dict) -> tuple[str, str]:
     return start, episodes
 
 
-def size_flags(pol: dict) -> list[str]:
-    """`--policy.<field>=<value>` for each architecture field of the trained config that differs from its
-    preset's value (e.g. `--policy.dit_mlp_ratio=3.5`), so that the card's command rebuilds the same model."""
+def preset_flags(pol: dict) -> list[str]:
+    """`--policy.<field>=<value>` for each preset-set field of the trained config that differs from its
+    preset's value (e.g. `--policy.dit_mlp_ratio=3.5`, `--policy.fusion_gate_lr_scale=1.0`), so that the
+    card's command rebuilds the same model and trains it the same way."""
     from lerobot.policies.factory import make_policy_config
 
     import lerobot_bavo.policies  # noqa: F401  (registers the policy types)
 
     reference = make_policy_config(pol["type"], preset=pol["preset"], device="cpu")
     flags = []
-    for field in SIZE_FIELDS:
+    for field in PRESET_FIELDS:
         if field not in pol or not hasattr(reference, field):
             continue
         value, preset_value = pol[field], getattr(reference, field)
@@ -432,7 +435,7 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
     start, episodes = start_flags(train)
     after = (f", on top of the training of `{pol['pretrained_path']}` (its own card)"
              if pol.get("pretrained_path") else "")
-    extra = size_flags(pol) + [
+    extra = preset_flags(pol) + [
         f"--policy.{k}={pol[k]}" for k in ("points_per_step", "optimizer_lr", "scheduler_warmup_steps")]
     if pol.get("occluder_dropout"):  # the training recipe against the Stage occluder's position cue
         extra.append(f"--policy.occluder_dropout={pol['occluder_dropout']}")

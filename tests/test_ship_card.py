@@ -63,20 +63,26 @@ def test_the_cards_of_joined_data_variants_point_to_the_variant_commands():
         assert "DATA=dartsf512" not in text, card_file
 
 
-def test_the_card_names_the_size_flags_that_differ_from_the_preset():
+def test_the_card_names_the_preset_flags_that_differ_from_the_preset():
     """A model of the `cpu` preset with a narrower MLP (a size that fits 7 MB in float16) needs
-    `--policy.dit_mlp_ratio=3.5` to be rebuilt from the card's command; the preset's own sizes need none."""
-    size_flags = load_script("scripts/ship_checkpoint.py").size_flags
+    `--policy.dit_mlp_ratio=3.5` to be rebuilt from the card's command; the preset's own sizes need none. A
+    training setting a preset fills (A-FAR's fusion-gate lr multiplier, 10 in `cpu_fast`) is named the same
+    way when a run changed it."""
+    preset_flags = load_script("scripts/ship_checkpoint.py").preset_flags
     cpu = {"type": "afar", "preset": "cpu", "dit_hidden_dim": 192, "dit_num_layers": 3, "dit_num_heads": 4,
            "time_embed_hidden_dim": 256, "point_encoder_hidden_dims": [64, 128, 256, 512],
            "dit_mlp_ratio": 4.0}
-    assert size_flags(cpu) == []
-    assert size_flags({**cpu, "dit_mlp_ratio": 3.5}) == ["--policy.dit_mlp_ratio=3.5"]
-    assert size_flags({**cpu, "point_encoder_hidden_dims": [64, 128]}) == [
+    assert preset_flags(cpu) == []
+    assert preset_flags({**cpu, "dit_mlp_ratio": 3.5}) == ["--policy.dit_mlp_ratio=3.5"]
+    assert preset_flags({**cpu, "point_encoder_hidden_dims": [64, 128]}) == [
         "--policy.point_encoder_hidden_dims=[64,128]"]
-    assert size_flags({**cpu, "type": "maniflow", "preset": "cpu_fast"}) == [  # cpu's sizes on cpu_fast
+    assert preset_flags({**cpu, "type": "maniflow", "preset": "cpu_fast"}) == [  # cpu's sizes on cpu_fast
         "--policy.point_encoder_hidden_dims=[64,128,256,512]", "--policy.dit_hidden_dim=192",
         "--policy.time_embed_hidden_dim=256"]
+    fast = {**cpu, "preset": "cpu_fast", "point_encoder_hidden_dims": [64, 128], "dit_hidden_dim": 128,
+            "time_embed_hidden_dim": 128, "fusion_gate_lr_scale": 10.0}
+    assert preset_flags(fast) == []
+    assert preset_flags({**fast, "fusion_gate_lr_scale": 1.0}) == ["--policy.fusion_gate_lr_scale=1.0"]
 
 
 def test_a_joined_source_kept_for_its_recoveries_says_so_on_the_card():
