@@ -169,9 +169,9 @@ DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr20
                  "mixsr200sf_cpu_mlp3.5", "mixsr200sf_ft", "mixsr150sf", "mixsr200sfro", "mixsr200sfrc",
                  "mixsr200sfca", "mixsroc200sf", "mixsr400sf", "mixsr400sf_b2x", "mixsr400sf_b2x_lr1e3",
                  "mixsr400sf_b4x", "mixs400r200sf_b2x_lr1e3", "mixs400r200sf_b2x_lr1e3_ftstage",
-                 "mixsr400sfcw25_b2x_lr1e3",
-                 "mixsr400sfrw25_b2x_lr1e3", "mixsr400sfodr_b2x_lr1e3", "mixsr400sfco25_b2x_lr1e3", "sf",
-                 "sf_b2x", "sf_half", "sfdc1", "sf_lr1e3")
+                 "mixs400r200sfgate1_b2x_lr1e3", "mixsr400sfcw25_b2x_lr1e3", "mixsr400sfrw25_b2x_lr1e3",
+                 "mixsr400sfodr_b2x_lr1e3", "mixsr400sfco25_b2x_lr1e3", "sf", "sf_b2x", "sf_half", "sfdc1",
+                 "sf_lr1e3")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
