@@ -18,7 +18,7 @@
 # shipped as checkpoints/maniflow_cube_handoff_${DATA}_b2x_lr1e3[_s<seed>] and validated beside ManiFlow's 200 + 200
 # variant). FLAVOUR names a training-only variant on the same data (e.g. FLAVOUR=odr with
 # --policy.occluder_dropout_in_recovery=false): the run gets the tag _p128_od50_b2x_lr1e3_$FLAVOUR and the
-# checkpoint the name afar_cube_handoff_${DATA}${FLAVOUR}_b2x_lr1e3: it never overwrites the data's own.
+# checkpoint the name ${METHOD}_cube_handoff_${DATA}${FLAVOUR}_b2x_lr1e3: it never overwrites the data's own.
 # BIN is where the project's commands are, as in scripts/train_task.sh (default .venv/bin/; BIN= takes them from
 # PATH). Afterwards: the seed's grid entry in configs/grid_table.yaml and `python scripts/grid_runs.py save`.
 set -euo pipefail
