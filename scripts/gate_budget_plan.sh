@@ -22,21 +22,6 @@ DATA=mixs400r200sf FLAVOUR=gate1 GRID_METHOD=afar-self-filter-stage400+random200
 case " ${SEEDS:-1000} " in *" 1000 "*) ;; *) exit 0 ;; esac
 "${BIN}bavo-eval" --policy "$C" --tasks cube_handoff --conditions stage --episodes 80 --seed 1040 --workers 2 \
     --videos 0 --output-dir "outputs/eval/val2_$(basename "$C")"
-"${BIN}python" - "$C" <<'PY'
-import sys
-from pathlib import Path
-
-from lerobot_bavo.eval.run import read_episode_records
-
-name = Path(sys.argv[1]).name
-first = read_episode_records(Path(f"outputs/eval/val_{name}/episodes.jsonl"))
-more = read_episode_records(Path(f"outputs/eval/val2_{name}/episodes.jsonl"))
-n = {c: sum(bool(r["success"]) for r in first if r["condition"] == c) for c in ("clean", "stage", "random")}
-stage = n["stage"] + sum(bool(r["success"]) for r in more)
-if len(first) != 120 or len(more) != 80:
-    sys.exit(f"expected 120 + 80 validation episodes, found {len(first)} + {len(more)}")
-passed = n["clean"] >= 20 and n["random"] >= 10 and stage >= 78
-print(f"[gate_budget] seed 1000, validation: Clean {n['clean']} / 40, Random-time {n['random']} / 40, "
-      f"Stage {n['stage']} / 40 and {stage} / 120 with 1040-1119 (gate: Clean >= 20, Random-time >= 10, "
-      f"Stage >= 78) -> {'passed' if passed else 'not passed'}")
-PY
+"${BIN}python" scripts/validation_gate.py "outputs/eval/val_$(basename "$C")/episodes.jsonl" \
+    "outputs/eval/val2_$(basename "$C")/episodes.jsonl" --label "gate_budget seed 1000" --clean-min 20 \
+    --random-min 10 --stage-min 78

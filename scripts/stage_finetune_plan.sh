@@ -82,23 +82,10 @@ PY
         [ "$chosen" = none ] && { echo "[stage_finetune] no step passes Random-time >= 10 and Clean >= 20"; exit 0; }
         evaluate "outputs/train/$(run_of 1000)/checkpoints/$chosen/pretrained_model" \
             "outputs/eval/${V/val/val2}_s1000_$chosen" stage 80 1040
-        "${BIN}python" - "$chosen" <<'PY'
-import os
-import sys
-from pathlib import Path
-
-from lerobot_bavo.eval.run import read_episode_records
-
-step, v = sys.argv[1], os.environ["V"]
-first = [r for r in read_episode_records(Path(f"outputs/eval/{v}_s1000_{step}/episodes.jsonl"))
-         if r["condition"] == "stage"]
-more = read_episode_records(Path(f"outputs/eval/{v.replace('val', 'val2', 1)}_s1000_{step}/episodes.jsonl"))
-if len(first) != 40 or len(more) != 80:
-    sys.exit(f"expected 40 + 80 Stage episodes, found {len(first)} + {len(more)}")
-total = sum(bool(r["success"]) for r in first + more)
-print(f"[stage_finetune] step {int(step)}: Stage {total} / 120 validation episodes (gate: >= 78) -> "
-      f"{'passed' if total >= 78 else 'not passed'}")
-PY
+        # the gate: Stage >= 78 of the 120 validation episodes (Clean and Random-time were the choice's rule)
+        "${BIN}python" scripts/validation_gate.py "outputs/eval/${V}_s1000_$chosen/episodes.jsonl" \
+            "outputs/eval/${V/val/val2}_s1000_$chosen/episodes.jsonl" --label "stage_finetune step $chosen" \
+            --stage-min 78
         ;;
     test)
         step=${STEP:?set STEP to the chosen step (500, 1000 or 1500)}
