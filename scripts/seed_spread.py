@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from lerobot_bavo.eval.run import read_episode_records
+from lerobot_bavo.metrics import success_rate
 
 CONDITIONS = ("clean", "stage", "random")
 
@@ -53,7 +54,7 @@ def seed_rates(method_dir: Path, seeds: list[str], task: str, condition: str,
         cell = [r for r in read_episode_records(logs[0]) if r["condition"] == condition]
         if len(cell) != episodes:
             return None
-        rates.append(sum(bool(r["success"]) for r in cell) / episodes)
+        rates.append(success_rate([r["success"] for r in cell]) / 100.0)
     return rates
 
 
