@@ -14,7 +14,7 @@ evaluate the shipped folder, then ship again with `--checkpoint DIR --eval resul
 `scripts/train_task.sh recipe` does).
 
 Inference settings (`--num-inference-steps`, `--n-action-steps`, `--temporal-ensemble-coeff`,
-`--smoothed-action-dims` with `--action-smoothing-alpha`) are written into
+`--binary-min-run`, `--smoothed-action-dims` with `--action-smoothing-alpha`) are written into
 the shipped config.json and the card says they differ from training; `--notes FILE` adds how they were chosen.
 `--checkpoint DIR` re-ships a `pretrained_model` folder (e.g. the shipped one, in place) when the training run
 is not on this machine; `--eval` may be given once per results.json (e.g. Stage and Clean evaluated
@@ -364,6 +364,10 @@ def card(train: dict, evals: list[dict], wall_min: float | None, name: str, data
         alpha = config["action_smoothing_alpha"]
         execution += (f"; action dims {dims_text(config['smoothed_action_dims'])} low-pass filtered at "
                       f"inference (a_t = a_(t-1) + {alpha} (u_t - a_(t-1)); set in the shipped config.json)")
+    if config.get("binary_min_run") is not None:
+        execution += (f"; a planned gripper switch that the chunk holds for fewer than "
+                      f"{config['binary_min_run']} steps before coming back is not executed "
+                      "(`binary_min_run`; set in the shipped config.json)")
     steps, batch = train.get("shipped_step") or train["steps"], train["batch_size"]
     schedule = (f" (a checkpoint of a {train['steps']}-step cosine schedule, i.e. before its end)"
                 if steps != train["steps"] else "")
@@ -552,6 +556,16 @@ def shipped_config(config: dict, args: argparse.Namespace) -> dict:
             config[key] = value
     if args.temporal_ensemble_coeff is not None:
         config["temporal_ensemble_coeff"] = args.temporal_ensemble_coeff
+    if args.binary_min_run is not None:
+        config["binary_min_run"] = args.binary_min_run
+    if config.get("binary_min_run") is not None:
+        from lerobot_bavo.policies.switches import check_min_run
+
+        try:
+            check_min_run(config["binary_min_run"], config.get("binary_action_dims"),
+                          config.get("temporal_ensemble_coeff"))
+        except ValueError as err:
+            raise SystemExit(f"--binary-min-run: {err}") from None
     if args.smoothed_action_dims is not None:
         from lerobot_bavo.policies.smoothing import check_smoothing
 
@@ -630,6 +644,14 @@ def main() -> None:
         help="write ACT's temporal ensembling into the shipped config.json (an inference setting: each "
         "executed action is the exp(-coeff * i)-weighted mean of the overlapping chunks' predictions, "
         "a chunk every --n-action-steps steps; the card says so); default: as trained",
+    )
+    p.add_argument(
+        "--binary-min-run",
+        type=int,
+        default=None,
+        help="write this many steps into the shipped config.json as binary_min_run (an inference setting: "
+        "a planned gripper switch the chunk does not hold for that long, and that comes back, is not "
+        "executed; policies/switches.py; the card says so); default: as trained",
     )
     p.add_argument(
         "--smoothed-action-dims",

@@ -234,3 +234,40 @@ def test_paired_outcomes_matches_episodes_by_seed(tmp_path, capsys):
             module.main([pair])
         assert exit_info.value.code == 2
         assert message in capsys.readouterr().err
+
+
+def test_paired_outcomes_gate_reads_the_pooled_net_change(tmp_path, capsys):
+    """Two pairs pooled: Stage A only 3, B only 1 (net +2); Clean A only 0, B only 2 (net -2)."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "paired_outcomes", Path(__file__).resolve().parent.parent / "scripts" / "paired_outcomes.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+
+    def write(name, outcomes):
+        rows = [{"task": "t", "condition": c, "seed": s, "success": w} for c, s, w in outcomes]
+        (tmp_path / name).write_text("".join(json.dumps(r) + "\n" for r in rows))
+        return str(tmp_path / name)
+
+    a1 = write("a1.jsonl", [("stage", 1, True), ("stage", 2, True), ("clean", 1, False)])
+    b1 = write("b1.jsonl", [("stage", 1, False), ("stage", 2, False), ("clean", 1, True)])
+    a2 = write("a2.jsonl", [("stage", 1, True), ("stage", 2, False), ("clean", 1, False)])
+    b2 = write("b2.jsonl", [("stage", 1, False), ("stage", 2, True), ("clean", 1, True)])
+    pairs = [f"{a1}={b1}", f"{a2}={b2}"]
+    for flags, code, last in (
+        (["--min-gain", "stage=2", "--max-loss", "clean=2"], 0, "gate passed"),
+        (["--min-gain", "stage=3"], 1, "gate not passed: stage net 2 < +3"),
+        (["--min-gain", "stage=2", "--max-loss", "clean=1"], 1, "gate not passed: clean net -2 < -1"),
+        (["--min-gain", "random=0"], 1, "gate not passed: random net None < +0"),
+    ):
+        with pytest.raises(SystemExit) as exit_info:
+            module.main(pairs + flags)
+        assert exit_info.value.code == code
+        assert capsys.readouterr().out.strip().splitlines()[-1] == last
+    with pytest.raises(SystemExit) as exit_info:
+        module.main(pairs + ["--min-gain", "stage"])
+    assert exit_info.value.code == 2
+    assert "expected CONDITION=COUNT" in capsys.readouterr().err

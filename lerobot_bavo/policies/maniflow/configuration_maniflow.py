@@ -10,6 +10,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from lerobot_bavo.features import OBS_ENV_STATE, OBS_POINT_CLOUD, POSE_CHANNELS, TEACHER_PREFIX
 from lerobot_bavo.policies.optim import FusedAdamWConfig
 from lerobot_bavo.policies.smoothing import check_smoothing
+from lerobot_bavo.policies.switches import check_min_run
 
 # OBS_ENV_STATE: the privileged-state alternative to the point cloud, K object poses (POSE_CHANNELS = 7 each:
 # xyz + wxyz quaternion), one token per object; used by the first rung of the failure ladder
@@ -221,6 +222,13 @@ class ManiFlowConfig(PreTrainedConfig):
             snapped to the two ends, the 0.45 release becomes "closed", the right gripper never lets go of
             the bar and every policy stopped at M2 (docs/results/first_grasp.md). Inference only, like the
             snapping itself.
+        binary_min_run: None (default, off) or a number of control steps >= 2: when a chunk is sampled, a
+            switch of a snapped `binary_action_dims` command away from the level executed last is kept only
+            if the chunk plans the new level for at least this many steps (or to the end of its horizon); a
+            shorter run that comes back is replaced by the executed level (`policies/switches.py`). Why: a
+            policy holding the cube can sample, at a new chunk's first action, the start of the experts'
+            closing ramp from part-open; snapped, it opens the gripper for a few steps, chunk after chunk
+            (docs/results/learning_rate.md). Inference only; not with `temporal_ensemble_coeff`.
         relative_action_dims: Action dimensions the network predicts relative to the current state (the
             state entry of the same index, last observation step), in MIN_MAX units and divided by
             `relative_action_scales`: r = (a_n - s_n) / scale (`policies/relative.py`). Training turns the
@@ -344,6 +352,7 @@ class ManiFlowConfig(PreTrainedConfig):
     clip_actions: bool = True
     binary_action_dims: tuple[int, ...] | None = None
     binary_action_levels: tuple[float, ...] = (-1.0, 1.0)
+    binary_min_run: int | None = None
 
     # Action parametrisation (training and inference alike).
     relative_action_dims: tuple[int, ...] = ()
@@ -429,6 +438,7 @@ class ManiFlowConfig(PreTrainedConfig):
                 f"(MIN_MAX-normalised). Got {list(self.binary_action_levels)}."
             )
         self.binary_action_levels = levels
+        check_min_run(self.binary_min_run, self.binary_action_dims, self.temporal_ensemble_coeff)
         self._check_relative_actions()
         self.smoothed_action_dims = tuple(int(d) for d in self.smoothed_action_dims)
         check_smoothing(self.smoothed_action_dims, self.action_smoothing_alpha, self.binary_action_dims or ())
@@ -507,6 +517,7 @@ class ManiFlowConfig(PreTrainedConfig):
             names = (features.get(ACTION) or {}).get("names")
             self.binary_action_dims = default_binary_action_dims(names=names)
             self._check_binary_action_dims_mode()
+            check_min_run(self.binary_min_run, self.binary_action_dims, self.temporal_ensemble_coeff)
 
     def validate_features(self) -> None:
         if self.input_features:
@@ -552,6 +563,7 @@ class ManiFlowConfig(PreTrainedConfig):
             if self.binary_action_dims is None:  # no dataset names seen (built from an env or an old config)
                 self.binary_action_dims = default_binary_action_dims(action_dim=action_dim)
                 self._check_binary_action_dims_mode()
+                check_min_run(self.binary_min_run, self.binary_action_dims, self.temporal_ensemble_coeff)
             bad = [d for d in self.binary_action_dims if not 0 <= d < action_dim]
             if bad:
                 raise ValueError(

@@ -35,6 +35,7 @@ from lerobot_bavo.policies.ensemble import ChunkEnsemble
 from lerobot_bavo.policies.heap import keep_freed_heap
 from lerobot_bavo.policies.relative import as_index, to_absolute, to_relative
 from lerobot_bavo.policies.smoothing import ActionLowPass
+from lerobot_bavo.policies.switches import hold_short_switches
 
 from .configuration_maniflow import ManiFlowConfig
 
@@ -627,8 +628,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         return self.model.parameters()
 
     def reset(self):
-        """Clear the observation and action queues (and the stored chunks of temporal ensembling, and the
-        command low-pass's last action); call on env.reset()."""
+        """Clear the observation and action queues (and the stored chunks of temporal ensembling, the
+        command low-pass's last action and the last executed action); call on env.reset()."""
         self._queues = {
             self.config.observation_key: deque(maxlen=self.config.n_obs_steps),
             OBS_STATE: deque(maxlen=self.config.n_obs_steps),
@@ -637,6 +638,7 @@ class ManiFlowPolicy(PreTrainedPolicy):
         coeff = self.config.temporal_ensemble_coeff
         self._ensemble = None if coeff is None else ChunkEnsemble(coeff, self.config.n_action_steps)
         self._low_pass = ActionLowPass(self.config.smoothed_action_dims, self.config.action_smoothing_alpha)
+        self._last_executed: Tensor | None = None  # (B, A) normalised: what `binary_min_run` holds back to
 
     def train(self, mode: bool = True):
         super().train(mode)
@@ -764,12 +766,17 @@ class ManiFlowPolicy(PreTrainedPolicy):
         """The `n_action_steps` actions to execute from the current step, (B, n_action_steps, A), normalised.
 
         Uses the observation queues when `select_action` filled them, else the batch as given (B, To, ...).
+        With `binary_min_run` set, short planned switches of the snapped dimensions are held back against the
+        last action `select_action` executed (none yet: the plan's own first level).
         """
         if (queued := self._queued_observations()) is not None:
             batch = queued
         actions = self.generate_actions(batch, noise=noise, generator=generator)
-        start = self.config.n_obs_steps - 1
-        return actions[:, start : start + self.config.n_action_steps]
+        plan = actions[:, self.config.n_obs_steps - 1:]  # from the current step to the horizon's end
+        if self.config.binary_min_run is not None:
+            plan = hold_short_switches(plan, self.config.binary_action_dims, self.config.binary_min_run,
+                                       self._last_executed)
+        return plan[:, : self.config.n_action_steps]
 
     def _queued_observations(self) -> dict[str, Tensor] | None:
         """The observation queues `select_action` fills, stacked (B, n_obs_steps, ...); None while they are
@@ -807,7 +814,8 @@ class ManiFlowPolicy(PreTrainedPolicy):
         if len(self._queues[ACTION]) == 0:
             actions = self.predict_action_chunk(obs, noise=noise, generator=generator)
             self._queues[ACTION].extend(actions.transpose(0, 1))
-        return self._low_pass(self._queues[ACTION].popleft())
+        self._last_executed = self._queues[ACTION].popleft()
+        return self._low_pass(self._last_executed)
 
     # ---- Training
     # -------------------------------------------------------------------------------------------
