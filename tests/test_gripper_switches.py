@@ -4,6 +4,7 @@ hand-made sequences, and the pooled summary of hand-made logs."""
 import gzip
 import json
 
+import pytest
 from _helpers import load_script
 
 
@@ -43,3 +44,24 @@ def test_pool_summarises_gzipped_and_plain_logs(tmp_path, capsys):
     # the failure's right-gripper runs start at 12, 30 and 48: two of three at a chunk's first step
     assert "failures (1), right_gripper: short runs (<= 6 steps) per episode mean 3.0, median 3, episodes " \
         "with any 1, 2 of 3 start a chunk" in out
+
+
+def test_grasp_yaw_geometry_and_summary_by_hand():
+    gy = load_script("scripts/grasp_yaw.py")
+    assert gy.wrap90(50.0) == -40.0 and gy.wrap90(-50.0) == 40.0 and gy.wrap90(10.0) == 10.0
+    import numpy as np
+
+    # a top-down gripper turned by +30 degrees about z: its closing axis is rot_z(30) @ (0, -1, 0)
+    a = np.radians(30)
+    rot = np.array([[np.cos(a), np.sin(a), 0.0], [np.sin(a), -np.cos(a), 0.0], [0.0, 0.0, -1.0]])
+    assert gy.closing_yaw_deg(rot) == pytest.approx(30.0)
+    rows = [{"seed": 1, "success": True, "cube_yaw": 20.0, "grip_yaw": 18.0},    # misaligned 2
+            {"seed": 2, "success": False, "cube_yaw": -25.0, "grip_yaw": 10.0},  # 35
+            {"seed": 3, "success": True, "cube_yaw": 5.0, "grip_yaw": -10.0},    # 15
+            {"seed": 4, "success": False, "cube_yaw": 28.0, "grip_yaw": None}]   # never closed
+    text = gy.summarise(rows)
+    assert "4 episodes, 2 successes; 1 never closed the right gripper" in text
+    assert "|misalignment| 0-10 deg: 1 of 1 succeed" in text
+    assert "|misalignment| 10-20 deg: 1 of 1 succeed" in text
+    assert "|misalignment| 30-46 deg: 0 of 1 succeed" in text
+    assert "|cube yaw| 0-15 deg: 1 of 1 succeed" in text and "|cube yaw| 15-46 deg: 1 of 3 succeed" in text

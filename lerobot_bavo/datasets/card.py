@@ -146,6 +146,12 @@ def card_description(sidecar: dict, repo_id: str) -> str:
             if st.get("decoy_panels")
             else []
         ),
+        *(
+            ["- The expert grasped square to the table's axes (`--square-grasps`: wrist yaw 0, the closing "
+             "fingers turn the object) instead of turning to the object's faces. A data variant."]
+            if st.get("square_grasps")
+            else []
+        ),
         f"- Observation: {st['image_height']} x {st['image_width']} RGB, {st['n_points']} points per cloud, "
         f"vertical field of view {st['fovy']} deg (intrinsics f = H / (2 tan(fovy / 2)), principal point at "
         "the image centre).",

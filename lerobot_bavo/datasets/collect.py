@@ -269,7 +269,8 @@ class Collector(DatasetSession):
                 "staging": str(self.staging),
                 "video": self._video if seed >= 0 else None,
                 "execution_noise": cfg.execution_noise.to_dict() if cfg.execution_noise.enabled else None,
-                "events_outside_contacts": cfg.events_outside_contacts, "decoy_panels": cfg.decoy_panels}
+                "events_outside_contacts": cfg.events_outside_contacts, "decoy_panels": cfg.decoy_panels,
+                "square_grasps": cfg.square_grasps}
 
     @functools.cached_property
     def _video(self) -> dict | None:
@@ -374,6 +375,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "telling where the target is (the occluder shortcut). A data variant for occluded "
                         "conditions (docs/results/decoy_panels.md); the benchmark never has decoys. "
                         "Default: 0")
+    p.add_argument("--square-grasps", action="store_true",
+                   help="the scripted expert grasps square to the table's axes (wrist yaw 0) instead of "
+                        "turning to the object's faces, and the closing fingers turn the object. A data "
+                        "variant (docs/results/learning_rate.md); cube_handoff only. Default: off")
     p.add_argument(
         "--push-to-hub", action="store_true", help="upload when done (needs `hf auth login`)"
     )
@@ -417,6 +422,7 @@ def main(argv: list[str] | None = None) -> int:
             ),
             events_outside_contacts=args.events_outside_contacts,
             decoy_panels=args.decoy_panels,
+            square_grasps=args.square_grasps,
             push_to_hub=args.push_to_hub,
             private=True if args.private else None,
             progress=not args.no_progress,

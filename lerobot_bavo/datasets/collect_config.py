@@ -43,6 +43,8 @@ class CollectConfig:
             (`BavoEnv.hold_occlusion_events`); only for an occluded condition. Off by default.
         decoy_panels: decoy panels in the scene (`BavoEnv(decoy_panels=...)`): copies of the occluder that
             never hide the current target; only for an occluded condition. 0 (default): the benchmark's scene.
+        square_grasps: the scripted expert's top-down grasps keep the wrist at yaw 0 (`ScriptedExpert`'s
+            `square_grasps`; Cube Handoff only). Off by default.
         use_videos: store the active image as video.
         video_codec: that video's codec (`datasets/video_codec.py`): "h264" or "libsvtav1" (LeRobot's default
         AV1).
@@ -69,6 +71,7 @@ class CollectConfig:
     execution_noise: ExecutionNoise = field(default_factory=ExecutionNoise)
     events_outside_contacts: bool = False
     decoy_panels: int = 0
+    square_grasps: bool = False
     use_videos: bool = True
     video_codec: str | None = None
     push_to_hub: bool = False
@@ -104,6 +107,13 @@ class CollectConfig:
             if not get_condition(self.condition).occluded:
                 raise ValueError(f"--decoy-panels needs an occluded condition; {self.condition!r} has no "
                                  "occlusion events to place them at")
+        if self.square_grasps:
+            from lerobot_bavo.experts import EXPERTS
+
+            if self.task not in EXPERTS or not EXPERTS[self.task].supports_square_grasps:
+                supported = sorted(n for n in EXPERTS if EXPERTS[n].supports_square_grasps)
+                raise ValueError(f"--square-grasps is not implemented for the {self.task!r} expert; tasks "
+                                 f"whose expert has it: {', '.join(supported)}")
         if "/" not in self.repo_id:
             raise ValueError(f"--repo-id must look like '<user>/<name>', got {self.repo_id!r}")
 
@@ -136,6 +146,7 @@ class CollectConfig:
             **({"execution_noise": self.execution_noise.to_dict()} if self.execution_noise.enabled else {}),
             **({"events_outside_contacts": True} if self.events_outside_contacts else {}),
             **({"decoy_panels": self.decoy_panels} if self.decoy_panels else {}),
+            **({"square_grasps": True} if self.square_grasps else {}),
             "use_videos": self.use_videos,
             # Only when not the codec of datasets made before the choice existed (their records name none).
             **video_codec_record_entry(video_codec, self.use_videos),

@@ -113,7 +113,7 @@ class EpisodeRecorder:
         self.env.close()
 
     def record(self, seed: int, agent=None, execution_noise: ExecutionNoise | None = None,
-               events_outside_contacts: bool = False) -> EpisodeRecord:
+               events_outside_contacts: bool = False, square_grasps: bool = False) -> EpisodeRecord:
         """Record the episode of `seed`, driven by the scripted expert, or by `agent` when given.
 
         With `execution_noise` (DART, `experts/perturbation.py`), the env executes the agent's arm joint
@@ -125,6 +125,9 @@ class EpisodeRecorder:
 
         With `events_outside_contacts`, an occlusion event that falls due while the agent is in one of its
         `contact_phases` waits until that phase is over (`BavoEnv.hold_occlusion_events`).
+
+        With `square_grasps`, the scripted expert grasps square to the table's axes
+        (`ScriptedExpert`'s `square_grasps`); ignored when `agent` is given.
         """
         from lerobot_bavo.experts import make_expert
         from lerobot_bavo.experts.base import in_contact_phase
@@ -132,7 +135,7 @@ class EpisodeRecorder:
         env = self.env
         t0 = time.perf_counter()
         obs, info = env.reset(seed=seed)
-        expert = make_expert(env, seed=seed) if agent is None else agent
+        expert = make_expert(env, seed=seed, square_grasps=square_grasps) if agent is None else agent
         expert.reset()
         noise = (
             execution_noise.process(seed) if execution_noise is not None and execution_noise.enabled else None

@@ -99,7 +99,8 @@ def run_job(job: dict) -> dict:
     cpu0 = time.process_time()
     noise = ExecutionNoise(**job["execution_noise"]) if job.get("execution_noise") else None
     record = recorder.record(int(job["seed"]), execution_noise=noise,
-                             events_outside_contacts=bool(job.get("events_outside_contacts")))
+                             events_outside_contacts=bool(job.get("events_outside_contacts")),
+                             square_grasps=bool(job.get("square_grasps")))
     return stage_episode(record, Path(job["staging"]), record.success or job["keep_failures"], cpu0,
                          video=job.get("video"))
 

@@ -15,15 +15,17 @@ register_expert = EXPERTS.register
 EXPERTS.discover(__name__, ScriptedExpert)
 
 
-def make_expert(env, seed: int | None = None, frozen_camera: bool = False) -> ScriptedExpert:
+def make_expert(env, seed: int | None = None, frozen_camera: bool = False,
+                square_grasps: bool = False) -> ScriptedExpert:
     """The scripted expert for `env`'s task. Call `reset()` on it after every `env.reset()`.
 
-    `frozen_camera=True` gives the reference variant whose camera arm never moves.
+    `frozen_camera=True` gives the reference variant whose camera arm never moves; `square_grasps=True`
+    the data variant whose top-down grasps keep the wrist at yaw 0 (ValueError where not implemented).
     """
     name = env.unwrapped.task.name
     if name not in EXPERTS:
         raise NotImplementedError(f"no scripted expert for task {name!r}; available: {', '.join(EXPERTS)}")
-    return EXPERTS[name](env, seed=seed, frozen_camera=frozen_camera)
+    return EXPERTS[name](env, seed=seed, frozen_camera=frozen_camera, square_grasps=square_grasps)
 
 
 __all__ = ["EXPERTS", "ScriptedExpert", "make_expert", "register_expert"]

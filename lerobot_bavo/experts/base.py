@@ -69,6 +69,12 @@ class ScriptedExpert(abc.ABC):
             the nominal timing.
         frozen_camera: reference variant whose camera arm never moves (same manipulation, no
             look-at tracking, no recovery).
+        square_grasps: a data variant (`bavo-collect --square-grasps`) for experts that support it
+            (`supports_square_grasps`): top-down grasps keep the gripper square to the table's axes
+            (yaw 0) instead of turning it to the object's faces, and the closing fingers turn the
+            object. Why: the learned policies' wrist yaw at the grasp does not follow the cube's
+            (docs/results/learning_rate.md), so demonstrations that never turn the wrist ask for a
+            behaviour they can copy. ValueError for an expert that does not support it.
     """
 
     task_name: str = ""  # the benchmark task this expert solves
@@ -76,12 +82,18 @@ class ScriptedExpert(abc.ABC):
     # (`experts/perturbation.py`); empty: noise in every phase.
     contact_phases: frozenset[str] = frozenset()
     speed_jitter = 0.15
+    supports_square_grasps = False  # whether `square_grasps=True` changes this expert's grasps
     view_search = ViewSearch()  # where view recovery looks, and when it ends
 
-    def __init__(self, env, seed: int | None = None, frozen_camera: bool = False):
+    def __init__(self, env, seed: int | None = None, frozen_camera: bool = False,
+                 square_grasps: bool = False):
+        if square_grasps and not self.supports_square_grasps:
+            raise ValueError(f"square grasps are not implemented for the {self.task_name!r} expert; "
+                             "tasks whose expert has them: cube_handoff")
         self.env = env.unwrapped
         self.seed = seed
         self.frozen_camera = frozen_camera
+        self.square_grasps = square_grasps
         self.rng = np.random.default_rng(seed) if seed is not None else None
         self._script: Generator | None = None
         self.phase = "idle"

@@ -3,7 +3,9 @@
 Phases: Reach (right, top-down above the cube) -> Grasp -> Lift to the handoff point ->
 Left reach (side grasp, pitched down) -> Left grasp -> Right release and retreat ->
 Carry over the plate -> Lower -> Release -> Retreat. Targets are recomputed from the cube's
-and the plate's actual poses at the start of each phase.
+and the plate's actual poses at the start of each phase. The right gripper grasps square to the
+cube's faces, or with `square_grasps` square to the table's axes (yaw 0; the closing fingers turn
+the cube, which lies within +-30 degrees).
 """
 
 from __future__ import annotations
@@ -29,10 +31,11 @@ class CubeHandoffExpert(ScriptedExpert):
     task_name = "cube_handoff"
     contact_phases = frozenset({"descend", "grasp", "left_approach", "left_grasp", "right_release", "lower",
                                 "release"})
+    supports_square_grasps = True
 
     def script(self):
         cube = self.body_pos("cube")
-        yaw = face_yaw(self.body_rot("cube"))
+        yaw = 0.0 if self.square_grasps else face_yaw(self.body_rot("cube"))
         r_down = topdown_rot([0.0, -1.0, 0.0], yaw)
         grasp = cube + rot_z(yaw) @ RIGHT_GRASP_OFFSET
 

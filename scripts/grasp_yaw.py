@@ -1,0 +1,129 @@
+"""Cube Handoff: the right wrist's yaw when a policy first closes its gripper, against the cube's (issue 27).
+
+Why: the learned policies' Stage failures run out of time at the lift, after grasps whose fingers stop wide
+apart (a hold across the cube, not square to its faces), and the failed episodes are those whose cube lies
+turned by 15 degrees or more. This logs, per episode, the cube's face yaw at reset (the yaw of its face normal
+nearest the world x axis, in [-45, 45] degrees: the turn the scripted expert gives its wrist) and the
+gripper's closing-axis yaw at the first step the right gripper command falls below 0.5 (0 = fingers closing
+along -y, as the expert's top-down grasp at yaw 0), with the episode's outcome. The summary gives the
+correlation of the two yaws and the successes by the misalignment between them (wrapped to [-45, 45]).
+
+    python scripts/grasp_yaw.py --policy checkpoints/afar_cube_handoff_mixs400r200sf_b2x_lr1e3_ftstage \
+        --condition stage --seeds 1000-1039 --output outputs/grasp_yaw/afar_ft_s1000.jsonl
+    python scripts/grasp_yaw.py --pool outputs/grasp_yaw/afar_ft_s1000.jsonl
+
+Seeds default to the validation seeds (1000+); test seeds (2000+) are for reporting only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+from pathlib import Path
+
+import numpy as np
+
+BINS = ((0, 10), (10, 20), (20, 30), (30, 46))  # |misalignment| bins, degrees
+
+
+def wrap90(deg: float) -> float:
+    """An angle difference in degrees wrapped to [-45, 45): a box's side faces are 90 degrees apart."""
+    return (deg + 45.0) % 90.0 - 45.0
+
+
+def closing_yaw_deg(rot: np.ndarray) -> float:
+    """Yaw (degrees) of a top-down gripper whose fingers close along its frame's y axis (column 1 of `rot`);
+    0 = closing along -y."""
+    y = rot[:, 1]
+    return float(np.degrees(np.arctan2(y[0], -y[1])))
+
+
+def summarise(rows: list[dict]) -> str:
+    closed = [r for r in rows if r["grip_yaw"] is not None]
+    lines = [f"{len(rows)} episodes, {sum(r['success'] for r in rows)} successes; "
+             f"{len(rows) - len(closed)} never closed the right gripper"]
+    if len(closed) >= 2:
+        cube = np.array([r["cube_yaw"] for r in closed])
+        grip = np.array([r["grip_yaw"] for r in closed])
+        lines.append(f"wrist yaw against cube yaw: correlation {np.corrcoef(grip, cube)[0, 1]:.2f}, slope "
+                     f"{np.polyfit(cube, grip, 1)[0]:.2f}; wrist yaw sd {grip.std():.1f} deg")
+    for lo, hi in BINS:
+        chosen = [r for r in closed if lo <= abs(wrap90(r["grip_yaw"] - r["cube_yaw"])) < hi]
+        lines.append(f"|misalignment| {lo}-{hi} deg: {sum(r['success'] for r in chosen)} of {len(chosen)} "
+                     "succeed")
+    for lo, hi in ((0, 15), (15, 46)):
+        chosen = [r for r in rows if lo <= abs(r["cube_yaw"]) < hi]
+        wins = sum(r["success"] for r in chosen)
+        lines.append(f"|cube yaw| {lo}-{hi} deg: {wins} of {len(chosen)} succeed")
+    return "\n".join(lines)
+
+
+def read_rows(path: Path) -> list[dict]:
+    if not path.is_file():
+        raise SystemExit(f"--pool: no log at {path}")
+    text = gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--policy", help="a checkpoint folder (pretrained_model)")
+    ap.add_argument("--condition", default="stage")
+    ap.add_argument("--seeds", default="1000-1039", help="first-last (inclusive)")
+    ap.add_argument("--output", type=Path, help="JSON-lines log, one episode per line")
+    ap.add_argument("--pool", type=Path, nargs="+", help="summarise these logs instead of rolling out")
+    args = ap.parse_args()
+    if args.pool:
+        print(summarise([row for path in args.pool for row in read_rows(path)]))
+        return
+    if not args.policy:
+        ap.error("--policy is required unless --pool is given")
+    first, last = (int(s) for s in args.seeds.split("-"))
+
+    from lerobot_bavo.envs.bavo_env import BavoEnv
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
+    from lerobot_bavo.sim import constants as C
+    from lerobot_bavo.sim.transforms import face_yaw
+
+    env = BavoEnv(task="cube_handoff", condition=args.condition, **env_kwargs_for_policy(args.policy))
+    agent = make_agent(args.policy, env)
+    dim = C.ACTION_NAMES.index("right_gripper")
+    rows = []
+    out = open(args.output, "w") if args.output else None  # noqa: SIM115 (written as episodes finish)
+    try:
+        for seed in range(first, last + 1):
+            seen: dict = {}
+            act = agent.act
+
+            def logging_act(obs, info, seen=seen, act=act):
+                action = act(obs, info)
+                u = env.unwrapped
+                if "cube_yaw" not in seen:
+                    cube_rot = u.data.xmat[u.task.cube_body].reshape(3, 3)
+                    seen["cube_yaw"] = float(np.degrees(face_yaw(cube_rot)))
+                if float(action[dim]) < 0.5 and "grip_yaw" not in seen:
+                    seen["grip_yaw"] = closing_yaw_deg(u.data.site("right_gripper_center").xmat.reshape(3, 3))
+                    seen["close_step"] = int(info["elapsed_steps"])
+                return action
+
+            agent.act = logging_act
+            try:
+                record = run_episode(env, agent, seed)
+            finally:
+                agent.act = act
+            row = {"seed": seed, "success": bool(record["success"]), "cube_yaw": seen["cube_yaw"],
+                   "grip_yaw": seen.get("grip_yaw"), "close_step": seen.get("close_step")}
+            rows.append(row)
+            if out:
+                out.write(json.dumps(row) + "\n")
+                out.flush()
+    finally:
+        env.close()
+        if out:
+            out.close()
+    print(summarise(rows))
+
+
+if __name__ == "__main__":
+    main()
