@@ -70,10 +70,8 @@ def trace_episode(env, agent, seed: int, side: str, obj: str, closed: float) -> 
     dim = C.ACTION_NAMES.index(f"{side}_gripper")
     seen = {"close_step": None, "offset_mm": None, "commanded_offset_mm": None, "closest_mm": float("inf"),
             "closest_step": None, "min_command": 1.0}
-    act = agent.act
 
-    def logging_act(obs, info):
-        action = act(obs, info)
+    def log(obs, info, action):
         offset = env.data.site(f"{side}_gripper_center").xpos - object_position(env, obj)
         distance = 1000 * float(np.linalg.norm(offset))
         if distance < seen["closest_mm"]:
@@ -85,13 +83,8 @@ def trace_episode(env, agent, seed: int, side: str, obj: str, closed: float) -> 
             target = commanded_site(env, scratch, action, f"{side}_gripper_center")
             commanded = target - object_position(env, obj)
             seen["commanded_offset_mm"] = [round(1000 * float(v), 1) for v in commanded]
-        return action
 
-    agent.act = logging_act
-    try:
-        record = run_episode(env, agent, seed)
-    finally:
-        agent.act = act
+    record = run_episode(env, agent, seed, on_act=log)
     return {"seed": seed, "progress": record["progress"], "success": record["success"], **seen}
 
 

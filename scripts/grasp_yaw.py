@@ -18,8 +18,6 @@ Seeds default to the validation seeds (1000+); test seeds (2000+) are for report
 from __future__ import annotations
 
 import argparse
-import gzip
-import json
 from pathlib import Path
 
 import numpy as np
@@ -59,14 +57,33 @@ def summarise(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def read_rows(path: Path) -> list[dict]:
-    if not path.is_file():
-        raise SystemExit(f"--pool: no log at {path}")
-    text = gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
-    return [json.loads(line) for line in text.splitlines() if line.strip()]
+def trace_episode(env, agent, seed: int, condition: str) -> dict:
+    """One episode: the cube's face yaw at reset and the right wrist's closing-axis yaw at the first step its
+    gripper command falls below 0.5 (degrees; None if it never closes), with the outcome."""
+    from lerobot_bavo.eval.rollout import run_episode
+    from lerobot_bavo.sim import constants as C
+    from lerobot_bavo.sim.transforms import face_yaw
+
+    dim = C.ACTION_NAMES.index("right_gripper")
+    seen: dict = {}
+
+    def log(obs, info, action):
+        u = env.unwrapped
+        if "cube_yaw" not in seen:
+            seen["cube_yaw"] = float(np.degrees(face_yaw(u.data.xmat[u.task.cube_body].reshape(3, 3))))
+        if float(action[dim]) < 0.5 and "grip_yaw" not in seen:
+            seen["grip_yaw"] = closing_yaw_deg(u.data.site("right_gripper_center").xmat.reshape(3, 3))
+            seen["close_step"] = int(info["elapsed_steps"])
+
+    record = run_episode(env, agent, seed, on_act=log)
+    return {"task": "cube_handoff", "condition": condition, "seed": seed, "success": bool(record["success"]),
+            "cube_yaw": seen["cube_yaw"], "grip_yaw": seen.get("grip_yaw"),
+            "close_step": seen.get("close_step")}
 
 
 def main() -> None:
+    from lerobot_bavo.eval.run import read_episode_records, record_episodes
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--policy", help="a checkpoint folder (pretrained_model)")
     ap.add_argument("--condition", default="stage")
@@ -75,53 +92,22 @@ def main() -> None:
     ap.add_argument("--pool", type=Path, nargs="+", help="summarise these logs instead of rolling out")
     args = ap.parse_args()
     if args.pool:
-        print(summarise([row for path in args.pool for row in read_rows(path)]))
+        print(summarise([row for path in args.pool for row in read_episode_records(path)]))
         return
     if not args.policy:
         ap.error("--policy is required unless --pool is given")
     first, last = (int(s) for s in args.seeds.split("-"))
 
     from lerobot_bavo.envs.bavo_env import BavoEnv
-    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent, run_episode
-    from lerobot_bavo.sim import constants as C
-    from lerobot_bavo.sim.transforms import face_yaw
+    from lerobot_bavo.eval.rollout import env_kwargs_for_policy, make_agent
 
     env = BavoEnv(task="cube_handoff", condition=args.condition, **env_kwargs_for_policy(args.policy))
     agent = make_agent(args.policy, env)
-    dim = C.ACTION_NAMES.index("right_gripper")
-    rows = []
-    out = open(args.output, "w") if args.output else None  # noqa: SIM115 (written as episodes finish)
     try:
-        for seed in range(first, last + 1):
-            seen: dict = {}
-            act = agent.act
-
-            def logging_act(obs, info, seen=seen, act=act):
-                action = act(obs, info)
-                u = env.unwrapped
-                if "cube_yaw" not in seen:
-                    cube_rot = u.data.xmat[u.task.cube_body].reshape(3, 3)
-                    seen["cube_yaw"] = float(np.degrees(face_yaw(cube_rot)))
-                if float(action[dim]) < 0.5 and "grip_yaw" not in seen:
-                    seen["grip_yaw"] = closing_yaw_deg(u.data.site("right_gripper_center").xmat.reshape(3, 3))
-                    seen["close_step"] = int(info["elapsed_steps"])
-                return action
-
-            agent.act = logging_act
-            try:
-                record = run_episode(env, agent, seed)
-            finally:
-                agent.act = act
-            row = {"seed": seed, "success": bool(record["success"]), "cube_yaw": seen["cube_yaw"],
-                   "grip_yaw": seen.get("grip_yaw"), "close_step": seen.get("close_step")}
-            rows.append(row)
-            if out:
-                out.write(json.dumps(row) + "\n")
-                out.flush()
+        rows = record_episodes(range(first, last + 1),
+                               lambda seed: trace_episode(env, agent, seed, args.condition), args.output)
     finally:
         env.close()
-        if out:
-            out.close()
     print(summarise(rows))
 
 

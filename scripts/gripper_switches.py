@@ -22,7 +22,6 @@ summary of logs written before (several files pool), without rolling anything ou
 from __future__ import annotations
 
 import argparse
-import gzip
 import json
 from collections import Counter
 from pathlib import Path
@@ -67,39 +66,27 @@ def summarise(rows: list[dict], short: int, chunk: int | None) -> str:
     return "\n".join(lines)
 
 
-def trace_episode(env, agent, seed: int, short: int) -> dict:
+def trace_episode(env, agent, seed: int, short: int, task: str, condition: str) -> dict:
     """One episode: the executed gripper commands snapped at 0.5, and their short runs (start = env step)."""
     from lerobot_bavo.eval.rollout import run_episode
     from lerobot_bavo.sim import constants as C
 
     dims = {name: C.ACTION_NAMES.index(name) for name in GRIPPERS}
     levels: dict[str, list[int]] = {name: [] for name in GRIPPERS}
-    act = agent.act
 
-    def logging_act(obs, info):
-        action = act(obs, info)
+    def log(obs, info, action):
         for name, d in dims.items():
             levels[name].append(int(float(action[d]) >= 0.5))  # 1 open, 0 closed
-        return action
 
-    agent.act = logging_act
-    try:
-        record = run_episode(env, agent, seed)
-    finally:
-        agent.act = act
-    return {"seed": seed, "success": bool(record["success"]), "progress": int(record["progress"]),
-            "steps": int(record["steps"]),
+    record = run_episode(env, agent, seed, on_act=log)
+    return {"task": task, "condition": condition, "seed": seed, "success": bool(record["success"]),
+            "progress": int(record["progress"]), "steps": int(record["steps"]),
             "short_runs": {name: [list(r) for r in short_runs(v, short)] for name, v in levels.items()}}
 
 
-def read_text(path: Path) -> str:
-    """A log's text, gzip-compressed (.gz, as committed under docs/results/) or not."""
-    if not path.is_file():
-        raise SystemExit(f"--pool: no log at {path}")
-    return gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
-
-
 def main() -> None:
+    from lerobot_bavo.eval.run import read_episode_records, record_episodes
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--policy", help="a checkpoint folder (pretrained_model)")
     ap.add_argument("--task", default="cube_handoff")
@@ -114,8 +101,7 @@ def main() -> None:
     if args.short < 1:
         ap.error(f"--short must be >= 1, not {args.short}")
     if args.pool:
-        rows = [json.loads(line) for path in args.pool
-                for line in read_text(path).splitlines() if line.strip()]
+        rows = [row for path in args.pool for row in read_episode_records(path)]
         print(summarise(rows, args.short, args.chunk))
         return
     if not args.policy:
@@ -130,19 +116,11 @@ def main() -> None:
 
     env = BavoEnv(task=args.task, condition=args.condition, **env_kwargs_for_policy(args.policy))
     agent = make_agent(args.policy, env)
-    rows = []
-    out = open(args.output, "w") if args.output else None  # noqa: SIM115 (written as episodes finish)
     try:
-        for seed in range(first, last + 1):
-            row = trace_episode(env, agent, seed, args.short)
-            rows.append(row)
-            if out:
-                out.write(json.dumps(row) + "\n")
-                out.flush()
+        rows = record_episodes(range(first, last + 1), lambda seed: trace_episode(
+            env, agent, seed, args.short, args.task, args.condition), args.output)
     finally:
         env.close()
-        if out:
-            out.close()
     print(summarise(rows, args.short, chunk))
 
 

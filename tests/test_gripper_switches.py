@@ -22,9 +22,11 @@ def test_runs_and_short_runs_by_hand():
 def test_pool_summarises_gzipped_and_plain_logs(tmp_path, capsys):
     gs = load_script("scripts/gripper_switches.py")
     rows = [
-        {"seed": 1, "success": True, "progress": 5, "steps": 400,
+        {"task": "cube_handoff", "condition": "stage", "seed": 1, "success": True, "progress": 5,
+         "steps": 400,
          "short_runs": {"left_gripper": [], "right_gripper": [[1, 24, 3]]}},
-        {"seed": 2, "success": False, "progress": 2, "steps": 800,
+        {"task": "cube_handoff", "condition": "stage", "seed": 2, "success": False, "progress": 2,
+         "steps": 800,
          "short_runs": {"left_gripper": [[1, 36, 2]], "right_gripper": [[1, 12, 2], [1, 30, 4], [1, 48, 1]]}},
     ]
     (tmp_path / "a.jsonl.gz").write_bytes(gzip.compress((json.dumps(rows[0]) + "\n").encode()))

@@ -205,10 +205,13 @@ def mark_event(frame: np.ndarray, width: int = 6) -> np.ndarray:
 
 def run_episode(env, agent, seed: int, video_path: Path | None = None, video_every: int = 2,
                 mark_steps: int = 12, rerun_path: Path | None = None,
-                on_step: Callable[[dict], None] | None = None) -> dict:
+                on_step: Callable[[dict], None] | None = None,
+                on_act: Callable[[dict, dict, np.ndarray], None] | None = None) -> dict:
     """Roll out one seeded episode; returns its record (and writes a video, and a rerun recording of every
     step built from the observations and `info` only (`lerobot_bavo.viz.recorder`), if asked). `on_step(info)`
-    runs after every step, e.g. to show progress within an episode (`bavo-demo`)."""
+    runs after every step, e.g. to show progress within an episode (`bavo-demo`); `on_act(obs, info, action)`
+    runs after the agent chose each action and before the env executes it, with the env in the state the
+    agent saw (the probes in scripts/ read the simulator there)."""
     obs, info = env.reset(seed=seed)
     agent.reset(seed=seed)
     frames = []
@@ -231,6 +234,8 @@ def run_episode(env, agent, seed: int, video_path: Path | None = None, video_eve
         grab()
     while True:
         action = agent.act(obs, info)
+        if on_act is not None:
+            on_act(obs, info, action)
         if recorder is not None:
             recorder.add(obs, info, action, getattr(agent, "last_chunk", None))
         obs, reward, terminated, truncated, info = env.step(action)

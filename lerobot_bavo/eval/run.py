@@ -8,9 +8,11 @@ the files hold and how resume, locking and the executors behave.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from lerobot_bavo.metrics import CELL_METRICS, cell_metrics
@@ -102,6 +104,21 @@ def _episode_records(complete: bytes, log_path: Path) -> list[dict]:
             raise SystemExit(f"bavo-eval: {log_path} line {number} is corrupt ({e}); remove that line (its "
                              "episode then runs again) or use another --output-dir") from None
         records.append(r)
+    return records
+
+
+def record_episodes(seeds, trace: Callable[[int], dict], output: Path | None = None) -> list[dict]:
+    """`trace(seed)` for each seed, in order; with `output`, each record is appended to that JSON-lines file
+    (`append_record`) as soon as its episode ends, so an interrupted probe keeps what it finished. For the
+    probes in scripts/ that roll a policy out with their own logging (`run_episode(on_act=...)`); their
+    records carry "task", "condition" and "seed", so `read_episode_records` reads them back."""
+    records = []
+    with contextlib.ExitStack() as stack:
+        log = stack.enter_context(open(output, "wb", buffering=0)) if output is not None else None
+        for seed in seeds:
+            records.append(trace(seed))
+            if log is not None:
+                append_record(log, records[-1])
     return records
 
 
