@@ -43,7 +43,8 @@ case "${1:-}" in
             for seed in 1000 1001 1002; do
                 name=$(name_of $method "" $seed)
                 evaluate "$(with_min_run "$name")" "outputs/eval/val_min_run/$name" 1000
-                pairs+=("outputs/eval/val_min_run/$name/episodes.jsonl=docs/results/learning_rate/${name}_val.jsonl.gz")
+                # the committed as-shipped logs are named task first: cube_handoff_<method>_mixs400r200sf_..._val
+                pairs+=("outputs/eval/val_min_run/$name/episodes.jsonl=docs/results/learning_rate/${T}_${method}_${name#"${method}_${T}_"}_val.jsonl.gz")
             done
         done
         "${BIN}python" scripts/paired_outcomes.py "${pairs[@]}" --min-gain stage=12 --max-loss clean=12 \
