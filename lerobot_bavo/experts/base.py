@@ -88,8 +88,8 @@ class ScriptedExpert(abc.ABC):
     def __init__(self, env, seed: int | None = None, frozen_camera: bool = False,
                  square_grasps: bool = False):
         if square_grasps and not self.supports_square_grasps:
-            raise ValueError(f"square grasps are not implemented for the {self.task_name!r} expert; "
-                             "tasks whose expert has them: cube_handoff")
+            raise ValueError(f"square grasps are not implemented for the {self.task_name!r} expert (its "
+                             "`supports_square_grasps` is False)")
         self.env = env.unwrapped
         self.seed = seed
         self.frozen_camera = frozen_camera
