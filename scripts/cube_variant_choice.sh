@@ -21,13 +21,13 @@ python - $candidates <<'PY'
 import sys
 from pathlib import Path
 
-from lerobot_bavo.eval.run import read_episode_records
+from lerobot_bavo.eval.run import condition_successes, read_episode_records
 
 def stage_successes(path, seeds):
-    rows = [r for r in read_episode_records(Path(path)) if r["condition"] == "stage" and r["seed"] in seeds]
-    if len(rows) != len(seeds):
-        sys.exit(f"{path}: {len(rows)} Stage episodes on seeds {min(seeds)}-{max(seeds)}, expected {len(seeds)}")
-    return sum(bool(r["success"]) for r in rows)
+    wins, episodes = condition_successes(read_episode_records(Path(path)), "stage", seeds)
+    if episodes != len(seeds):
+        sys.exit(f"{path}: {episodes} Stage episodes on seeds {min(seeds)}-{max(seeds)}, expected {len(seeds)}")
+    return wins
 
 print("| candidate (seed 1000) | Stage, seeds 1000-1039 | Stage, seeds 1040-1119 | Stage, all 120 |")
 print("|---|---|---|---|")

@@ -30,13 +30,6 @@ def wrap90(deg: float) -> float:
     return (deg + 45.0) % 90.0 - 45.0
 
 
-def closing_yaw_deg(rot: np.ndarray) -> float:
-    """Yaw (degrees) of a top-down gripper whose fingers close along its frame's y axis (column 1 of `rot`);
-    0 = closing along -y."""
-    y = rot[:, 1]
-    return float(np.degrees(np.arctan2(y[0], -y[1])))
-
-
 def summarise(rows: list[dict]) -> str:
     closed = [r for r in rows if r["grip_yaw"] is not None]
     lines = [f"{len(rows)} episodes, {sum(r['success'] for r in rows)} successes; "
@@ -62,7 +55,7 @@ def trace_episode(env, agent, seed: int, condition: str) -> dict:
     gripper command falls below 0.5 (degrees; None if it never closes), with the outcome."""
     from lerobot_bavo.eval.rollout import run_episode
     from lerobot_bavo.sim import constants as C
-    from lerobot_bavo.sim.transforms import face_yaw
+    from lerobot_bavo.sim.transforms import closing_yaw, face_yaw
 
     dim = C.ACTION_NAMES.index("right_gripper")
     seen: dict = {}
@@ -72,7 +65,8 @@ def trace_episode(env, agent, seed: int, condition: str) -> dict:
         if "cube_yaw" not in seen:
             seen["cube_yaw"] = float(np.degrees(face_yaw(u.data.xmat[u.task.cube_body].reshape(3, 3))))
         if float(action[dim]) < 0.5 and "grip_yaw" not in seen:
-            seen["grip_yaw"] = closing_yaw_deg(u.data.site("right_gripper_center").xmat.reshape(3, 3))
+            grip = u.data.site("right_gripper_center").xmat.reshape(3, 3)
+            seen["grip_yaw"] = float(np.degrees(closing_yaw(grip)))
             seen["close_step"] = int(info["elapsed_steps"])
 
     record = run_episode(env, agent, seed, on_act=log)

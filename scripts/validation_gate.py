@@ -14,13 +14,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from lerobot_bavo.eval.run import condition_successes as successes
 from lerobot_bavo.eval.run import read_episode_records
-
-
-def successes(rows: list[dict], condition: str) -> tuple[int, int]:
-    """(successes, episodes) of one condition in an episode log's records."""
-    cell = [r for r in rows if r["condition"] == condition]
-    return sum(bool(r["success"]) for r in cell), len(cell)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -53,10 +53,13 @@ def test_grasp_yaw_geometry_and_summary_by_hand():
     assert gy.wrap90(50.0) == -40.0 and gy.wrap90(-50.0) == 40.0 and gy.wrap90(10.0) == 10.0
     import numpy as np
 
+    from lerobot_bavo.sim.transforms import closing_yaw, topdown_rot
+
     # a top-down gripper turned by +30 degrees about z: its closing axis is rot_z(30) @ (0, -1, 0)
     a = np.radians(30)
     rot = np.array([[np.cos(a), np.sin(a), 0.0], [np.sin(a), -np.cos(a), 0.0], [0.0, 0.0, -1.0]])
-    assert gy.closing_yaw_deg(rot) == pytest.approx(30.0)
+    assert np.degrees(closing_yaw(rot)) == pytest.approx(30.0)
+    assert closing_yaw(topdown_rot([0, -1, 0], a)) == pytest.approx(a)
     rows = [{"seed": 1, "success": True, "cube_yaw": 20.0, "grip_yaw": 18.0},    # misaligned 2
             {"seed": 2, "success": False, "cube_yaw": -25.0, "grip_yaw": 10.0},  # 35
             {"seed": 3, "success": True, "cube_yaw": 5.0, "grip_yaw": -10.0},    # 15

@@ -11,16 +11,9 @@ import pytest
 from lerobot_bavo.datasets.collect import CollectConfig, build_parser
 from lerobot_bavo.envs.bavo_env import BavoEnv
 from lerobot_bavo.experts import make_expert
-from lerobot_bavo.sim.transforms import face_yaw
+from lerobot_bavo.sim.transforms import closing_yaw, face_yaw
 
 SMALL = dict(n_points=32, image_height=48, image_width=64, render_mode=None)
-
-
-def closing_yaw(rot: np.ndarray) -> float:
-    """Yaw (rad) of a top-down gripper whose fingers close along its y axis; 0 = closing along -y, as
-    `topdown_rot([0, -1, 0])`."""
-    y = rot[:, 1]
-    return float(np.arctan2(y[0], -y[1]))
 
 
 def large_yaw_seed(env) -> tuple[int, float]:

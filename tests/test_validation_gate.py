@@ -44,3 +44,16 @@ def test_logs_of_the_wrong_size_are_refused(tmp_path):
     second = write_log(tmp_path / "more.jsonl", [("stage", 1040, 50, 80)])
     with pytest.raises(SystemExit, match="expected 40 episodes per condition"):
         gate.main([str(first), str(second)])
+
+
+def test_condition_successes_counts_one_condition_and_only_the_given_seeds():
+    from lerobot_bavo.eval.run import condition_successes
+
+    rows = [{"condition": "stage", "seed": 1000, "success": True},
+            {"condition": "stage", "seed": 1001, "success": False},
+            {"condition": "stage", "seed": 1040, "success": True},
+            {"condition": "clean", "seed": 1000, "success": True}]
+    assert condition_successes(rows, "stage") == (2, 3)
+    assert condition_successes(rows, "stage", set(range(1000, 1040))) == (1, 2)
+    assert condition_successes(rows, "clean") == (1, 1)
+    assert condition_successes(rows, "random") == (0, 0)

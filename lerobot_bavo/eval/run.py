@@ -135,6 +135,14 @@ def read_episode_records(log_path: Path) -> list[dict]:
     return _episode_records(data[: data.rfind(b"\n") + 1], log_path)
 
 
+def condition_successes(records: list[dict], condition: str, seeds=None) -> tuple[int, int]:
+    """(successes, episodes) of one condition in an episode log's records (`read_episode_records`), over the
+    given seeds only when `seeds` is given: the count every validation choice and gate of
+    docs/results/learning_rate.md reads."""
+    cell = [r for r in records if r["condition"] == condition and (seeds is None or r["seed"] in seeds)]
+    return sum(bool(r["success"]) for r in cell), len(cell)
+
+
 def episode_log_path(text: str) -> Path:
     """`path/to/episodes.jsonl[.gz]` -> Path, or a usage error naming it: the argparse `type` of every episode
     log the analysis scripts read (scripts/event_recovery.py, scripts/milestone_stops.py,

@@ -54,6 +54,13 @@ def topdown_rot(closing_axis, yaw: float | None = None) -> np.ndarray:
     return rot_from_axes(DOWN, closing)
 
 
+def closing_yaw(rot: np.ndarray) -> float:
+    """Yaw (rad, about world +z) of a top-down gripper's closing axis, column 1 of its rotation `rot`; 0 =
+    fingers closing along world -y. The inverse of `topdown_rot([0, -1, 0], yaw)` for yaw in (-pi, pi]."""
+    y = rot[:, 1]
+    return float(np.arctan2(y[0], -y[1]))
+
+
 def slerp_matrix(R0: np.ndarray, R1: np.ndarray, alpha: float) -> np.ndarray:
     """Spherical interpolation between two rotations (shortest arc), alpha in [0, 1]."""
     q0 = np.zeros(4)
