@@ -76,12 +76,12 @@ import os
 import sys
 from pathlib import Path
 
-from lerobot_bavo.eval.run import read_episode_records
+from lerobot_bavo.eval.run import condition_successes, read_episode_records
 
 best = None
 for step in ("000500", "001000", "001500"):
     rows = read_episode_records(Path(f"outputs/eval/{os.environ['V']}_s1000_{step}/episodes.jsonl"))
-    n = {c: sum(bool(r["success"]) for r in rows if r["condition"] == c) for c in ("clean", "stage", "random")}
+    n = {c: condition_successes(rows, c)[0] for c in ("clean", "stage", "random")}
     eligible = n["random"] >= 10 and n["clean"] >= 20
     print(f"| step {int(step)} | {n['clean']} / 40 | {n['stage']} / 40 | {n['random']} / 40 | "
           f"{'yes' if eligible else 'no'} |", file=sys.stderr)
