@@ -15,6 +15,8 @@
 #   bash scripts/cube_mix_data.sh mixs400r200sq200sf  # mixs400r200sf's 600 episodes, then 200 Stage episodes
 #                                                 # whose expert grasps square to the table (`--square-grasps`,
 #                                                 # seeds 400 and 600), episodes 600-799 of the view
+#   bash scripts/cube_mix_data.sh dartsf512_square  # one source alone (any named below): its collection and
+#                                                 # points view, no join (the square-grasp protocol pilot's data)
 #
 # Every source is 100 DART (0.01) demonstrations with 512 self-filtered points: Stage from seeds 0, 300, 700, 850,
 # Random-time from seeds 100, 500, square-grasp Stage from 400, 600 (demonstrations stay below seed 1000:
@@ -28,6 +30,14 @@ name=${1:?usage: cube_mix_data.sh mixsr400sf|mixs400r200sf|mixsr400sfcw25|mixsr4
 T=cube_handoff D=outputs/datasets/bavo_${T}
 sources="dartsf512 dartsf512b dartsf512_random dartsf512_randomb"  # 200 Stage + 200 Random-time
 random_weight="" weigh=()  # a ROOT:EPISODES:WEIGHT suffix for the Random-time sources, its mix_views.py --weigh
+collection() {  # source name -> "condition first-seed"
+    case "$1" in
+        dartsf512) echo "stage 0" ;; dartsf512b) echo "stage 300" ;; dartsf512c) echo "stage 700" ;;
+        dartsf512d) echo "stage 850" ;; dartsf512_random) echo "random 100" ;; dartsf512_randomb) echo "random 500" ;;
+        dartsf512_square) echo "stage 400 --square-grasps" ;; dartsf512_squareb) echo "stage 600 --square-grasps" ;;
+    esac
+}
+if [ -n "$(collection "$name")" ]; then sources=$name; else  # one source: no join
 case "$name" in
     mixsr400sf) ;;
     mixs400r200sf) sources="dartsf512 dartsf512b dartsf512c dartsf512d dartsf512_random dartsf512_randomb" ;;
@@ -37,15 +47,10 @@ case "$name" in
     mixsr400sfrw25) random_weight=:0.25 weigh=(--weigh recovery) ;;
     mixsr400sfco25) random_weight=:0.25 weigh=(--weigh outside-recovery) ;;
     *) echo "cube_mix_data: no variant named '$name' (mixsr400sf, mixs400r200sf, mixsr400sfcw25," \
-            "mixsr400sfrw25, mixsr400sfco25 or mixs400r200sq200sf)" >&2; exit 2 ;;
+            "mixsr400sfrw25, mixsr400sfco25 or mixs400r200sq200sf, or one source such as dartsf512_square)" >&2
+        exit 2 ;;
 esac
-collection() {  # source name -> "condition first-seed"
-    case "$1" in
-        dartsf512) echo "stage 0" ;; dartsf512b) echo "stage 300" ;; dartsf512c) echo "stage 700" ;;
-        dartsf512d) echo "stage 850" ;; dartsf512_random) echo "random 100" ;; dartsf512_randomb) echo "random 500" ;;
-        dartsf512_square) echo "stage 400 --square-grasps" ;; dartsf512_squareb) echo "stage 600 --square-grasps" ;;
-    esac
-}
+fi
 args=()
 for s in $sources; do
     read -r condition seed flags <<<"$(collection "$s")"
@@ -59,6 +64,7 @@ for s in $sources; do
     w=""; [ "$condition" = random ] && w=$random_weight
     args+=(--source "${D}_${s}_points:100$w")
 done
+[ "$sources" = "$name" ] && { echo "[cube_mix_data] ${D}_${name}_points ready"; exit 0; }
 out=${D}_${name}_points
 if [ ! -f "$out.joined" ]; then
     rm -rf "$out"
