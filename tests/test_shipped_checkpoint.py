@@ -164,7 +164,8 @@ SHIPPED = sorted(p for p in (Path(__file__).resolve().parent.parent / "checkpoin
 # occluder dropout sparing the recovery frames (mixsr400sfodr_b2x_lr1e3), or the Random-time camera commands
 # weighing 0.25 outside their recoveries (mixsr400sfco25_b2x_lr1e3), and the 400 + 200 one fine-tuned on its
 # Stage episodes (mixs400r200sf_b2x_lr1e3_ftstage) or on square-grasp Stage demonstrations (..._ftsquare);
-# the self-filtered recipe with decoy panels (sfdc1) and at peak lr 1e-3 (sf_lr1e3)
+# the self-filtered recipe with decoy panels (sfdc1), at peak lr 1e-3 (sf_lr1e3), and at peak lr 1e-3 on
+# square-grasp Stage demonstrations (sfsq_lr1e3)
 DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr200sf_b2x",
                  "mixsr200sf_cpu_mlp3.5", "mixsr200sf_ft", "mixsr150sf", "mixsr200sfro", "mixsr200sfrc",
                  "mixsr200sfca", "mixsroc200sf", "mixsr400sf", "mixsr400sf_b2x", "mixsr400sf_b2x_lr1e3",
@@ -172,7 +173,7 @@ DATA_VARIANTS = ("mixsr", "mixsr200", "mixsr200sf", "mixsr200sf_b1.5x", "mixsr20
                  "mixs400r200sf_b2x_lr1e3_ftsquare",
                  "mixs400r200sfgate1_b2x_lr1e3", "mixsr400sfcw25_b2x_lr1e3", "mixsr400sfrw25_b2x_lr1e3",
                  "mixsr400sfodr_b2x_lr1e3", "mixsr400sfco25_b2x_lr1e3", "sf", "sf_b2x", "sf_half", "sfdc1",
-                 "sf_lr1e3")
+                 "sf_lr1e3", "sfsq_lr1e3")
 
 
 def method_and_task(folder: Path) -> tuple[str, str]:
