@@ -18,7 +18,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export OPENBLAS_NUM_THREADS=1 MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE=1
 BIN="${BIN-.venv/bin/}"
-export PATH="$PWD/${BIN:-/nonexistent/}:$PATH"  # cube_mix_data.sh calls bavo-collect and python from PATH
+case "$BIN" in  # cube_mix_data.sh calls bavo-collect and python from PATH
+    "") ;; /*) export PATH="$BIN:$PATH" ;; *) export PATH="$PWD/$BIN:$PATH" ;;
+esac
 T=cube_handoff SEED=${SEED:-1000} DATA=dartsf512_square
 RUN=${T}_afar_p128_od50_lr1e3_${DATA}_s$SEED  # train_task.sh's name for it
 S=$([ "$SEED" = 1000 ] || echo "_s$SEED")
