@@ -31,9 +31,8 @@ with_min_run() {  # with_min_run NAME: the shipped checkpoint copied with the se
     echo "$out"
 }
 
-evaluate() {  # evaluate POLICY OUTPUT_DIR FIRST_SEED
-    "${BIN}bavo-eval" --policy "$1" --tasks $T --conditions clean,stage,random --episodes 40 --seed "$3" \
-        --workers 2 --videos 0 --output-dir "$2"
+evaluate() {  # evaluate POLICY OUTPUT_DIR FIRST_SEED: 40 seeds from FIRST_SEED, all three conditions
+    TASK=$T BIN=$BIN bash scripts/train_task.sh eval-policy "$1" "$2" "$3"
 }
 
 case "${1:-}" in

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Issue 27's square-grasp lever inside the paper's protocol (docs/results/learning_rate.md, "Plan: square grasps
-# inside the paper's protocol"): A-FAR's (METHOD=maniflow: ManiFlow's) self-filtered recipe at peak lr 1e-3 (the setting of the lr-by-validation row
-# on Cube Handoff), trained from scratch on 100 Stage demonstrations whose scripted expert grasps the cube square
+# inside the paper's protocol"): A-FAR's (METHOD=maniflow: ManiFlow's) self-filtered recipe at peak lr 1e-3 (the
+# setting of the lr-by-validation row on Cube Handoff), trained from scratch on 100 Stage demonstrations whose scripted expert grasps the cube square
 # to the table (`bavo-collect --square-grasps`, collection seeds 400-502), instead of the recipe's 100 face-grasp
 # ones. The step is the recipe's (4,000 of a 5,000-step cosine schedule), fixed in advance: nothing is chosen.
 #
@@ -38,8 +38,7 @@ train() {  # the recipe's arguments at lr 1e-3 on the square-grasp data, stopped
 }
 
 validate() {  # validate POLICY OUTPUT_DIR: the validation seeds 1000-1039, all three conditions
-    "${BIN}bavo-eval" --policy "$1" --tasks $T --conditions clean,stage,random --episodes 40 --seed 1000 \
-        --workers 2 --videos 0 --output-dir "$2"
+    TASK=$T BIN=$BIN bash scripts/train_task.sh eval-policy "$1" "$2" 1000
 }
 
 case "${1:-}" in

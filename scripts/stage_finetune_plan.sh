@@ -58,8 +58,7 @@ finetune() {  # finetune SEED: the 1,500-step fine-tune of that seed's shipped c
 }
 
 evaluate() {  # evaluate POLICY OUTPUT_DIR CONDITIONS EPISODES FIRST_SEED
-    "${BIN}bavo-eval" --policy "$1" --tasks $T --conditions "$3" --episodes "$4" --seed "$5" --workers 2 \
-        --videos 0 --output-dir "$2"
+    TASK=$T BIN=$BIN bash scripts/train_task.sh eval-policy "$1" "$2" "$5" --conditions "$3" --episodes "$4"
 }
 
 case "${1:-}" in

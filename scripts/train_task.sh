@@ -11,6 +11,8 @@
 #   bash scripts/train_task.sh afar         # rung 3: A-FAR (same budget and seed as rung 2)
 #   bash scripts/train_task.sh eval RUN     # bavo-eval of outputs/train/RUN on the validation seeds (clean + stage)
 #   bash scripts/train_task.sh test RUN STEP  # bavo-eval on the 40 test seeds 2000-2039, clean + stage + random
+#   bash scripts/train_task.sh eval-policy POLICY OUTPUT_DIR FIRST_SEED [bavo-eval args...]  # a policy folder on
+#                                             # 40 seeds from FIRST_SEED (1000: validation), all conditions, no videos
 #   bash scripts/train_task.sh data         # collect (once; a marker records it) + views
 #   bash scripts/train_task.sh recipe-train METHOD  # the recipe's training arguments, stopped after STOP_AT
 #                                             # (or after TRAIN_SECONDS; run again to resume)
@@ -105,11 +107,16 @@ train() {  # train NAME TYPE VIEW [extra lerobot-train args...]
         ${WARMUP:+--policy.scheduler_warmup_steps="$WARMUP"} "$@" 2>&1 | tee "outputs/train/$name.log"
 }
 
-test_eval() {  # test_eval POLICY OUTPUT_DIR [bavo-eval args...]: the 40 test seeds 2000-2039, all conditions
-    local policy=$1 out=$2
-    shift 2
+seeds_eval() {  # seeds_eval FIRST_SEED POLICY OUTPUT_DIR [bavo-eval args...]: 40 episodes from seed FIRST_SEED
+    # (1000: the validation seeds, 2000: the test seeds), all three conditions; later bavo-eval args win
+    local seed=$1 policy=$2 out=$3
+    shift 3
     ${BIN}bavo-eval --policy "$policy" --tasks "$TASK" --conditions clean,stage,random --episodes 40 \
-        --seed 2000 --workers "$WORKERS" --output-dir "$out" "$@"
+        --seed "$seed" --workers "$WORKERS" --output-dir "$out" "$@"
+}
+
+test_eval() {  # test_eval POLICY OUTPUT_DIR [bavo-eval args...]: the 40 test seeds 2000-2039, all conditions
+    seeds_eval 2000 "$@"
 }
 
 val_eval() {  # val_eval POLICY OUTPUT_DIR [bavo-eval args...]: EPISODES validation seeds from 1000, clean + stage
@@ -146,6 +153,9 @@ case "${1:-}" in
         run=${2:?usage: test RUN STEP}
         step=$(printf %06d "${3:?usage: test RUN STEP}")
         test_eval "outputs/train/$run/checkpoints/$step/pretrained_model" "outputs/eval/${run}_${step}_test" ;;
+    eval-policy)  # eval-policy POLICY OUTPUT_DIR FIRST_SEED [bavo-eval args...]: what the plan scripts evaluate
+        seeds_eval "${4:?usage: eval-policy POLICY OUTPUT_DIR FIRST_SEED [bavo-eval args...]}" "$2" "$3" \
+            --videos 0 "${@:5}" ;;
     data)  # collect (bavo-collect resumes a killed collection; the marker beside the dataset says it finished)
         # and the training views
         [ -f "$DS.collected" ] || { bash "$0" collect && touch "$DS.collected"; }
@@ -223,5 +233,5 @@ case "${1:-}" in
         ${BIN}python scripts/ship_checkpoint.py --checkpoint "$ship" --step "$ckpt" --eval "$evaldir/results.json" \
             ${NOTES:+--notes "$NOTES"} --output "$ship" ;;
     *)
-        sed -n 2,38p "$0"; exit 2 ;;
+        sed -n 2,45p "$0"; exit 2 ;;
 esac
