@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Issue 27's square-grasp lever inside the paper's protocol (docs/results/learning_rate.md, "Plan: square grasps
 # inside the paper's protocol"): A-FAR's (METHOD=maniflow: ManiFlow's) self-filtered recipe at peak lr 1e-3 (the
-# setting of the lr-by-validation row on Cube Handoff), trained from scratch on 100 Stage demonstrations whose scripted expert grasps the cube square
-# to the table (`bavo-collect --square-grasps`, collection seeds 400-502), instead of the recipe's 100 face-grasp
-# ones. The step is the recipe's (4,000 of a 5,000-step cosine schedule), fixed in advance: nothing is chosen.
+# setting of the lr-by-validation row on Cube Handoff), trained from scratch on 100 Stage demonstrations whose
+# scripted expert grasps the cube square to the table (`bavo-collect --square-grasps`, collection seeds 400-505),
+# instead of the recipe's 100 face-grasp ones. The step is the recipe's (4,000 of a 5,000-step cosine schedule),
+# fixed in advance: nothing is chosen. ManiFlow trains in ~15 min where A-FAR takes ~25-29.
 #
 #   bash scripts/square_protocol_plan.sh gate   # data if absent (~6-13 min), the training (~25 min, two torch
 #                                               # threads), then it and the recipe's lr 1e-3 checkpoint
@@ -57,5 +58,5 @@ case "${1:-}" in
             ship-test "$RUN" 4000 "checkpoints/${METHOD}_${T}_sfsq_lr1e3$S" \
             "outputs/eval/grid_table/runs/$METHOD-self-filter-square-lr1e-3/s$SEED/$T" ;;
     *)
-        sed -n 2,18p "$0"; exit 2 ;;
+        sed -n 2,19p "$0"; exit 2 ;;
 esac
